@@ -1,0 +1,38 @@
+// A ray's hit on a surface, with everything shading needs.
+#pragma once
+#include "core/frame.h"
+#include "core/ray.h"
+#include "render/shading.h"
+
+namespace meso {
+
+class Shape;
+
+struct SurfaceInteraction {
+    float t = Infinity;
+    Vec3 p;           ///< hit position (world)
+    Vec3 ng;          ///< geometric normal (unit, world; facing as the shape defines it)
+    Vec3 ns;          ///< interpolated shading normal (unit, world)
+    Vec2 uv;
+    Vec3 dpdu, dpdv;  ///< surface parameterisation derivatives (world)
+    Vec3 wo;          ///< direction towards the ray origin (unit, world)
+    const Shape *shape = nullptr;
+    uint32_t prim = 0;
+    // Footprint from ray differentials (Igehy 1999); zero if the ray had none.
+    Vec3 dpdx, dpdy;
+    float dudx = 0, dudy = 0, dvdx = 0, dvdy = 0;
+
+    /// Fills dpdx..dvdy from the ray's differentials (transfer to the tangent plane, then
+    /// solve the least-squares 2x2 for the uv derivatives). Leaves zeros if none.
+    void compute_differentials(const RayDifferential &ray);
+    /// Shading context with frame from ns and dpdu (flipped towards wo when `two_sided`).
+    ShadingContext shading_context(bool two_sided) const;
+    /// Origin offset along ng to the side of direction d, robust against self-intersection
+    /// (Wachter & Binder, Ray Tracing Gems ch. 6: integer ULP offsets scaled by |p|).
+    Vec3 offset_origin(Vec3 d) const;
+    Ray spawn_ray(Vec3 d) const;
+    /// Shadow ray towards point `target`, stopping just short of it.
+    Ray spawn_ray_to(Vec3 target) const;
+};
+
+}  // namespace meso

@@ -1,0 +1,35 @@
+// Indexed triangle meshes in world space.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+#include "core/transform.h"
+
+namespace meso {
+
+struct TriangleMesh {
+    std::vector<Vec3> positions;
+    std::vector<Vec3> normals;      ///< per vertex, optional (empty = flat shading)
+    std::vector<Vec2> uvs;          ///< per vertex, optional
+    std::vector<Vec3> tangents;     ///< per vertex, optional (glTF tangents, xyz)
+    std::vector<float> tangent_signs;///< per vertex bitangent sign, optional
+    std::vector<uint32_t> indices;  ///< 3 per triangle
+
+    size_t triangle_count() const { return indices.size() / 3; }
+    size_t vertex_count() const { return positions.size(); }
+    void transform(const Transform &t);
+    float triangle_area(size_t tri) const;
+    float surface_area() const;
+    /// Memory held, in bytes (for `meso render --plan`).
+    size_t memory_bytes() const;
+    /// Throws MesoError naming `where` when indices are out of range or sizes disagree.
+    void validate(const std::string &where) const;
+};
+
+/// Procedural meshes (all in object space, before to_world).
+TriangleMesh make_rectangle();                 ///< [-1,1]^2 at z=0, normal +z, uv in [0,1]^2
+TriangleMesh make_cube();                      ///< [-1,1]^3, outward normals, per-face uv
+TriangleMesh make_disk(int segments = 64);     ///< unit disk at z=0, normal +z
+TriangleMesh make_uv_sphere(int rings, int segments); ///< unit sphere, smooth normals
+
+}  // namespace meso

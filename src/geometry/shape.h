@@ -1,0 +1,43 @@
+// Shapes: geometry + material + optional area emitter. Triangle meshes (rectangle, cube,
+// disk, glTF meshes) and analytic spheres (Embree sphere primitives, exact normals).
+#pragma once
+#include <memory>
+#include <string>
+#include <embree3/rtcore.h>
+#include "geometry/interaction.h"
+#include "geometry/mesh.h"
+
+namespace meso {
+
+class Material;
+class Light;
+
+struct PositionSample {
+    Vec3 p, n;
+    Vec2 uv;
+    float pdf_area = 0.f;  ///< density w.r.t. surface area
+    uint32_t prim = 0;
+};
+
+class Shape {
+public:
+    virtual ~Shape() = default;
+    /// Creates and commits the Embree geometry (caller attaches it).
+    virtual RTCGeometry build_embree(RTCDevice device) const = 0;
+    /// Completes `si` from Embree's hit record (t, prim, barycentrics u, v; ray).
+    virtual void fill_interaction(const Ray &ray, float t, uint32_t prim, float u, float v,
+                                  SurfaceInteraction &si) const = 0;
+    virtual float surface_area() const = 0;
+    /// Uniform-by-area position sample (u_prim picks the primitive, u the point in it).
+    virtual PositionSample sample_area(float u_prim, Vec2 u) const = 0;
+    virtual size_t primitive_count() const = 0;
+    virtual size_t memory_bytes() const = 0;
+    virtual std::string to_string() const = 0;
+    /// The triangle mesh when the shape is one (area lights use it for solid-angle sampling).
+    virtual const TriangleMesh *mesh() const { return nullptr; }
+
+    std::shared_ptr<Material> material;
+    std::shared_ptr<Light> emitter;  ///< area light, or null
+};
+
+}  // namespace meso

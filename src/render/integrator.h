@@ -1,0 +1,31 @@
+// Integrators estimate radiance along camera rays. The render loop (passes, tiles,
+// budgets, progress, film) is shared in render/renderer.cpp; a plugin only implements li().
+#pragma once
+#include <memory>
+#include <string>
+#include "core/ray.h"
+#include "core/spectrum.h"
+
+namespace meso {
+
+class Scene;
+class Sampler;
+
+/// Per-thread counters, summed into the render record.
+struct RenderStats {
+    uint64_t rays = 0;         ///< all rays traced (closest-hit and shadow)
+    uint64_t shadow_rays = 0;
+};
+
+class Integrator {
+public:
+    virtual ~Integrator() = default;
+    /// Radiance arriving along `ray` (a camera ray with differentials).
+    virtual Spectrum li(const Scene &scene, RayDifferential ray, Sampler &sampler,
+                        RenderStats &stats) const = 0;
+    virtual std::string to_string() const = 0;
+    /// Called once before rendering.
+    virtual void preprocess(const Scene &scene) { (void)scene; }
+};
+
+}  // namespace meso

@@ -1,0 +1,101 @@
+// Typed, located access to one JSON object of a scene file. Every read is remembered;
+// after a plugin is built, check_unused() turns any key it did not read into an error
+// naming the file, the JSON path and the plugin, so typos never pass silently.
+//
+// Numbers: get_float accepts a JSON number; get_spectrum accepts a number (grey) or an
+// [r, g, b] array; get_vec3 an [x, y, z] array. Textures (get_texture) accept a number,
+// an [r,g,b] array, an inline object {"type": ...} or a string naming a texture declared
+// in the scene's top-level "textures" object.
+#pragma once
+#include <map>
+#include <memory>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+#include <nlohmann/json_fwd.hpp>
+#include "core/spectrum.h"
+#include "core/vec.h"
+
+namespace meso {
+
+class Texture;
+class Material;
+
+/// Shared state of one scene load: the file name for messages, the directory that
+/// relative paths resolve against, named objects, and -D overrides already applied.
+struct LoadContext {
+    std::string file;      ///< scene file as given by the user (for messages)
+    std::string base_dir;  ///< directory relative paths resolve against
+    std::map<std::string, std::shared_ptr<Texture>> textures;
+    std::map<std::string, std::shared_ptr<Material>> materials;
+    /// Declarations not yet built (built on first reference, so unused ones cost nothing).
+    const nlohmann::json *texture_decls = nullptr;
+    const nlohmann::json *material_decls = nullptr;
+    std::set<std::string> building;  ///< names being built (cycle detection)
+};
+
+class Properties {
+public:
+    /// `path` is the JSON path of `obj` ("materials.gold", "shapes[2].material").
+    Properties(const nlohmann::json &obj, std::string path, std::shared_ptr<LoadContext> ctx);
+    ~Properties();
+    Properties(const Properties &);
+
+    const std::string &path() const { return m_path; }
+    const std::string &file() const { return m_ctx->file; }
+    LoadContext &context() const { return *m_ctx; }
+    std::shared_ptr<LoadContext> context_ptr() const { return m_ctx; }
+    /// The plugin type ("type" key); marks it read.
+    std::string type() const;
+    bool has(const std::string &key) const;
+
+    float get_float(const std::string &key) const;
+    float get_float(const std::string &key, float def) const;
+    int get_int(const std::string &key) const;
+    int get_int(const std::string &key, int def) const;
+    bool get_bool(const std::string &key, bool def) const;
+    std::string get_string(const std::string &key) const;
+    std::string get_string(const std::string &key, const std::string &def) const;
+    Vec3 get_vec3(const std::string &key) const;
+    Vec3 get_vec3(const std::string &key, Vec3 def) const;
+    Spectrum get_spectrum(const std::string &key) const;
+    Spectrum get_spectrum(const std::string &key, Spectrum def) const;
+    std::vector<float> get_floats(const std::string &key) const;
+    /// A path relative to the scene file, resolved; errors if the file does not exist.
+    std::string get_file(const std::string &key) const;
+
+    /// Texture-valued parameter (number, [r,g,b], inline {"type":...} or a name).
+    std::shared_ptr<Texture> get_texture(const std::string &key, Spectrum def) const;
+    std::shared_ptr<Texture> get_texture(const std::string &key) const;
+    /// Material-valued parameter (inline object or a name of the top-level "materials").
+    std::shared_ptr<Material> get_material(const std::string &key) const;
+
+    /// Nested object; error if missing or not an object.
+    Properties child(const std::string &key) const;
+    std::optional<Properties> optional_child(const std::string &key) const;
+    /// Array of objects.
+    std::vector<Properties> children(const std::string &key) const;
+    /// Raw JSON value (marks the key read). Throws if absent.
+    const nlohmann::json &raw(const std::string &key) const;
+    /// Keys present in this object.
+    std::vector<std::string> keys() const;
+
+    /// Throws "file: path.key: message".
+    [[noreturn]] void fail(const std::string &key, const std::string &msg) const;
+    /// Throws "file: path: message".
+    [[noreturn]] void fail(const std::string &msg) const;
+    /// Error if any key was never read ("unknown parameter 'x' for <plugin>").
+    void check_unused(const std::string &plugin_desc) const;
+
+    std::string key_path(const std::string &key) const;
+
+private:
+    const nlohmann::json *m_obj;
+    std::string m_path;
+    std::shared_ptr<LoadContext> m_ctx;
+    std::shared_ptr<std::set<std::string>> m_read;
+    const nlohmann::json &require(const std::string &key) const;
+};
+
+}  // namespace meso
