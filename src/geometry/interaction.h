@@ -16,6 +16,7 @@ struct SurfaceInteraction {
     Vec2 uv;
     Vec3 dpdu, dpdv;  ///< surface parameterisation derivatives (world)
     Vec3 wo;          ///< direction towards the ray origin (unit, world)
+    float p_error = 0.f; ///< absolute error bound of p (per component), set by the shape
     const Shape *shape = nullptr;
     uint32_t prim = 0;
     // Footprint from ray differentials (Igehy 1999); zero if the ray had none.

@@ -1,0 +1,156 @@
+#include "geometry/mesh_shape.h"
+#include <fmt/format.h>
+#include "core/error.h"
+#include "sampling/warp.h"
+#include "scene/properties.h"
+#include "scene/registry.h"
+#include "scene/transform_parse.h"
+
+namespace meso {
+
+MeshShape::MeshShape(TriangleMesh mesh, std::string name) : m_mesh(std::move(mesh)), m_name(std::move(name)) {
+    m_mesh.validate(m_name);
+    std::vector<float> areas(m_mesh.triangle_count());
+    double total = 0;
+    for (size_t i = 0; i < areas.size(); ++i) {
+        areas[i] = m_mesh.triangle_area(i);
+        if (!std::isfinite(areas[i])) areas[i] = 0.f;
+        total += areas[i];
+    }
+    m_area = float(total);
+    m_area_distr = Distribution1D(areas);
+}
+
+RTCGeometry MeshShape::build_embree(RTCDevice device) const {
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    // Embree reads vertex buffers in 16-byte chunks: its own allocation pads correctly.
+    auto *v = static_cast<float *>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                           3 * sizeof(float), m_mesh.vertex_count()));
+    for (size_t i = 0; i < m_mesh.vertex_count(); ++i) {
+        v[3 * i] = m_mesh.positions[i].x;
+        v[3 * i + 1] = m_mesh.positions[i].y;
+        v[3 * i + 2] = m_mesh.positions[i].z;
+    }
+    auto *idx = static_cast<uint32_t *>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                                3 * sizeof(uint32_t), m_mesh.triangle_count()));
+    std::copy(m_mesh.indices.begin(), m_mesh.indices.end(), idx);
+    rtcCommitGeometry(geom);
+    return geom;
+}
+
+void MeshShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float bu, float bv,
+                                 SurfaceInteraction &si) const {
+    const uint32_t i0 = m_mesh.indices[3 * prim], i1 = m_mesh.indices[3 * prim + 1], i2 = m_mesh.indices[3 * prim + 2];
+    const Vec3 &p0 = m_mesh.positions[i0], &p1 = m_mesh.positions[i1], &p2 = m_mesh.positions[i2];
+    float b0 = 1.f - bu - bv;
+    si.t = t;
+    si.shape = this;
+    si.prim = prim;
+    // Interpolating the vertices is more accurate than o + t d; error bound as pbrt-v4
+    // (gamma(7) * sum |b_i p_i|).
+    si.p = p0 * b0 + p1 * bu + p2 * bv;
+    Vec3 perr = vabs(p0 * b0) + vabs(p1 * bu) + vabs(p2 * bv);
+    si.p_error = 4.2e-7f * max_component(perr) + 1e-9f;
+    si.wo = -normalize(ray.d);
+
+    Vec2 uv0(0, 0), uv1(1, 0), uv2(1, 1);
+    if (!m_mesh.uvs.empty()) {
+        uv0 = m_mesh.uvs[i0];
+        uv1 = m_mesh.uvs[i1];
+        uv2 = m_mesh.uvs[i2];
+    }
+    si.uv = uv0 * b0 + uv1 * bu + uv2 * bv;
+
+    Vec3 ng = cross(p1 - p0, p2 - p0);
+    float ng_len = length(ng);
+    bool degenerate = !(ng_len > 0.f) || !std::isfinite(ng_len);
+    ng = degenerate ? Vec3(0, 0, 0) : ng / ng_len;
+
+    Vec3 ns = ng;
+    if (!m_mesh.normals.empty()) {
+        Vec3 n = m_mesh.normals[i0] * b0 + m_mesh.normals[i1] * bu + m_mesh.normals[i2] * bv;
+        float l = length(n);
+        if (l > 0.f && std::isfinite(l)) ns = n / l;
+    }
+    if (degenerate) ng = length_squared(ns) > 0.f ? ns : si.wo;  // zero-area triangle hit
+    if (length_squared(ns) == 0.f) ns = ng;
+    if (dot(ng, ns) < 0.f) ng = -ng;  // geometric normal on the side of the shading normal
+    si.ng = ng;
+    si.ns = ns;
+
+    // dp/du, dp/dv from the triangle's uv parameterisation.
+    Vec2 duv02 = uv0 - uv2, duv12 = uv1 - uv2;
+    Vec3 dp02 = p0 - p2, dp12 = p1 - p2;
+    float det = duv02.x * duv12.y - duv02.y * duv12.x;
+    bool ok = std::abs(det) > 1e-12f;
+    if (ok) {
+        float inv = 1.f / det;
+        si.dpdu = (dp02 * duv12.y - dp12 * duv02.y) * inv;
+        si.dpdv = (dp12 * duv02.x - dp02 * duv12.x) * inv;
+        ok = is_finite(si.dpdu) && is_finite(si.dpdv) && length_squared(cross(si.dpdu, si.dpdv)) > 0.f;
+    }
+    if (!ok) coordinate_system(ng, si.dpdu, si.dpdv);
+    if (!m_mesh.tangents.empty()) {
+        Vec3 tg = m_mesh.tangents[i0] * b0 + m_mesh.tangents[i1] * bu + m_mesh.tangents[i2] * bv;
+        if (length_squared(tg) > 0.f) si.dpdu = normalize(tg) * length(si.dpdu);
+    }
+}
+
+PositionSample MeshShape::sample_area(float u_prim, Vec2 u) const {
+    PositionSample ps;
+    size_t tri = m_area_distr.sample_discrete(u_prim);
+    Vec2 b = square_to_uniform_triangle(u);
+    const uint32_t i0 = m_mesh.indices[3 * tri], i1 = m_mesh.indices[3 * tri + 1], i2 = m_mesh.indices[3 * tri + 2];
+    const Vec3 &p0 = m_mesh.positions[i0], &p1 = m_mesh.positions[i1], &p2 = m_mesh.positions[i2];
+    float b2 = 1.f - b.x - b.y;
+    ps.p = p0 * b.x + p1 * b.y + p2 * b2;
+    Vec3 ng = normalize(cross(p1 - p0, p2 - p0));
+    if (!m_mesh.normals.empty()) {
+        Vec3 ns = m_mesh.normals[i0] * b.x + m_mesh.normals[i1] * b.y + m_mesh.normals[i2] * b2;
+        if (dot(ng, ns) < 0.f) ng = -ng;
+    }
+    ps.n = ng;
+    if (!m_mesh.uvs.empty()) ps.uv = m_mesh.uvs[i0] * b.x + m_mesh.uvs[i1] * b.y + m_mesh.uvs[i2] * b2;
+    ps.pdf_area = m_area > 0.f ? 1.f / m_area : 0.f;
+    ps.prim = uint32_t(tri);
+    return ps;
+}
+
+size_t MeshShape::memory_bytes() const {
+    // Mesh arrays, Embree's copy of positions and indices, and its BVH (~ 64 B / triangle).
+    return m_mesh.memory_bytes() + m_mesh.vertex_count() * 12 + m_mesh.triangle_count() * (12 + 64) +
+           m_area_distr.size() * 12;
+}
+
+std::string MeshShape::to_string() const {
+    return fmt::format("{} ({} triangles, {} vertices, area {:.4g})", m_name, m_mesh.triangle_count(),
+                       m_mesh.vertex_count(), m_area);
+}
+
+std::shared_ptr<Shape> make_mesh_shape(TriangleMesh mesh, const Properties &p, const std::string &name) {
+    Transform t = parse_transform(p);
+    mesh.transform(t);
+    if (p.get_bool("flip_normals", false)) {
+        for (auto &n : mesh.normals) n = -n;
+        for (size_t i = 0; i + 2 < mesh.indices.size(); i += 3) std::swap(mesh.indices[i + 1], mesh.indices[i + 2]);
+    }
+    return std::make_shared<MeshShape>(std::move(mesh), name);
+}
+
+// Procedural mesh shapes (Mitsuba 3 names and object-space extents).
+MESO_REGISTER_SHAPE("rectangle", "[-1,1]^2 at z=0 facing +z (to_world, flip_normals)",
+                    [](const Properties &p) { return make_mesh_shape(make_rectangle(), p, p.path() + " (rectangle)"); });
+MESO_REGISTER_SHAPE("cube", "[-1,1]^3 with outward normals (to_world, flip_normals)",
+                    [](const Properties &p) { return make_mesh_shape(make_cube(), p, p.path() + " (cube)"); });
+MESO_REGISTER_SHAPE("disk", "unit disk at z=0 facing +z (to_world, flip_normals, segments)", [](const Properties &p) {
+    int seg = p.get_int("segments", 64);
+    if (seg < 3 || seg > 1 << 20) p.fail("segments", "expected an integer in [3, 1048576]");
+    return make_mesh_shape(make_disk(seg), p, p.path() + " (disk)");
+});
+MESO_REGISTER_SHAPE("uvsphere", "tessellated unit sphere (to_world, rings, segments)", [](const Properties &p) {
+    int rings = p.get_int("rings", 32), seg = p.get_int("segments", 64);
+    if (rings < 2 || seg < 3 || size_t(rings) * seg > (size_t(1) << 26)) p.fail("expected rings >= 2, segments >= 3, rings*segments <= 2^26");
+    return make_mesh_shape(make_uv_sphere(rings, seg), p, p.path() + " (uvsphere)");
+});
+
+}  // namespace meso

@@ -1,0 +1,147 @@
+#include "render/renderer.h"
+#include <sys/resource.h>
+#include <tbb/blocked_range2d.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/global_control.h>
+#include <tbb/info.h>
+#include <tbb/parallel_for.h>
+#include <unistd.h>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <fmt/format.h>
+#include "core/error.h"
+#include "render/progress.h"
+#include "sampling/sampler.h"
+#include "scene/scene.h"
+
+namespace meso {
+
+double peak_rss_mb() {
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    return ru.ru_maxrss / 1024.0;  // kB on Linux
+}
+
+namespace {
+
+/// Accumulates samples per pixel in double precision. Each pixel is written by one
+/// thread per pass and its samples are added in sample-index order, so the image is
+/// independent of the thread count.
+struct Film {
+    int w, h;
+    std::vector<double> sum;
+    std::atomic<long> nan_count{0};
+    Film(int w_, int h_) : w(w_), h(h_), sum(size_t(w_) * h_ * 3, 0.0) {}
+    Image resolve(int spp) const {
+        Image img(w, h, 3);
+        double inv = spp > 0 ? 1.0 / spp : 0.0;
+        for (size_t i = 0; i < sum.size(); ++i) img.data[i] = float(sum[i] * inv);
+        return img;
+    }
+};
+
+constexpr int TileSize = 32;
+
+}  // namespace
+
+RenderResult render(const Scene &scene, const RenderOptions &opts) {
+    if (!scene.camera || !scene.integrator || !scene.sampler) throw MesoError("scene is incomplete (camera, integrator or sampler missing)");
+    const int W = scene.camera->width(), H = scene.camera->height();
+    const int total_spp = opts.spp > 0 ? opts.spp : scene.spp;
+    const bool timed = opts.time_budget_s > 0;
+    int threads = opts.threads > 0 ? opts.threads : tbb::info::default_concurrency();
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
+
+    // Passes of at least ~64k samples keep the per-pass overhead negligible; a pass is a
+    // contiguous range of sample indices, so passes compose to exactly the same samples.
+    const int spp_per_pass = std::max(1, int(std::ceil(65536.0 / (double(W) * H))));
+    // pbrt-v4: scale camera differentials by max(1/8, 1/sqrt(spp)) (footprint of one sample).
+    const float diff_scale = std::max(0.125f, 1.f / std::sqrt(float(timed ? std::max(total_spp, 1) : total_spp)));
+
+    Film film(W, H);
+    tbb::enumerable_thread_specific<RenderStats> stats;
+    std::unique_ptr<std::ofstream> csv;
+    if (!opts.convergence_csv.empty()) {
+        if (!opts.reference) throw MesoError("--convergence needs --reference");
+        csv = std::make_unique<std::ofstream>(opts.convergence_csv);
+        if (!*csv) throw MesoError(fmt::format("cannot write '{}'", opts.convergence_csv));
+        *csv << "pass,elapsed_s,spp,mse,relmse\n";
+    }
+
+    scene.integrator->preprocess(scene);
+    Progress progress(opts.progress, timed ? opts.time_budget_s : double(total_spp), timed ? "s" : "spp");
+    auto t0 = std::chrono::steady_clock::now();
+    auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
+
+    int spp_done = 0, passes = 0;
+    const int tiles_x = (W + TileSize - 1) / TileSize, tiles_y = (H + TileSize - 1) / TileSize;
+    for (;;) {
+        int n = timed ? spp_per_pass : std::min(spp_per_pass, total_spp - spp_done);
+        if (n <= 0) break;
+        if (timed && passes > 0) {
+            // Start a pass only if it is expected to finish within the budget.
+            double per_pass = elapsed() / passes;
+            if (elapsed() + per_pass > opts.time_budget_s) break;
+        }
+        const int first = spp_done;
+        tbb::parallel_for(tbb::blocked_range2d<int>(0, tiles_y, 1, 0, tiles_x, 1), [&](const tbb::blocked_range2d<int> &r) {
+            std::unique_ptr<Sampler> sampler = scene.sampler->clone();
+            if (opts.seed) sampler->set_seed(*opts.seed);
+            RenderStats &st = stats.local();
+            for (int ty = r.rows().begin(); ty < r.rows().end(); ++ty)
+                for (int tx = r.cols().begin(); tx < r.cols().end(); ++tx) {
+                    const int x1 = std::min(W, (tx + 1) * TileSize), y1 = std::min(H, (ty + 1) * TileSize);
+                    for (int y = ty * TileSize; y < y1; ++y)
+                        for (int x = tx * TileSize; x < x1; ++x) {
+                            double *px = &film.sum[(size_t(y) * W + x) * 3];
+                            for (int s = first; s < first + n; ++s) {
+                                sampler->start_pixel_sample(x, y, uint32_t(s));
+                                CameraSample cs;
+                                Vec2 j = sampler->get_2d();
+                                cs.film = Vec2(x + j.x, y + j.y);
+                                cs.lens = sampler->get_2d();
+                                RayDifferential ray;
+                                float w = scene.camera->generate_ray(cs, ray);
+                                ray.scale_differentials(diff_scale);
+                                Spectrum L = scene.integrator->li(scene, ray, *sampler, st) * w;
+                                if (!L.is_finite()) {
+                                    film.nan_count.fetch_add(1, std::memory_order_relaxed);
+                                    continue;
+                                }
+                                px[0] += L.r;
+                                px[1] += L.g;
+                                px[2] += L.b;
+                            }
+                        }
+                }
+        });
+        spp_done += n;
+        ++passes;
+        double t = elapsed();
+        if (csv) {
+            ImageMetrics m = compute_metrics(film.resolve(spp_done), *opts.reference);
+            *csv << fmt::format("{},{:.6f},{},{:.9g},{:.9g}\n", passes, t, spp_done, m.mse, m.relmse);
+        }
+        progress.update(timed ? t : double(spp_done), t, fmt::format("{} spp", spp_done));
+        if (!timed && spp_done >= total_spp) break;
+    }
+    progress.finish(elapsed());
+
+    RenderResult res;
+    res.wall_s = elapsed();
+    res.spp = spp_done;
+    res.passes = passes;
+    res.threads = threads;
+    res.image = film.resolve(spp_done);
+    for (auto &s : stats) {
+        res.rays += s.rays;
+        res.shadow_rays += s.shadow_rays;
+    }
+    res.rays_per_s = res.wall_s > 0 ? res.rays / res.wall_s : 0;
+    res.nan_count = film.nan_count.load();
+    return res;
+}
+
+}  // namespace meso

@@ -1,0 +1,43 @@
+// The shared render loop: whole-image passes of tiles rendered in parallel with TBB,
+// under a sample budget (--spp) or a wall-clock budget (--time), with progress, a NaN
+// guard, and optional per-pass error against a reference.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+#include "image/image.h"
+
+namespace meso {
+
+class Scene;
+
+struct RenderOptions {
+    int spp = 0;                ///< total samples per pixel (0: the scene's sampler count)
+    double time_budget_s = 0;   ///< > 0: equal-time mode, render whole passes until spent
+    int threads = 0;            ///< 0: all cores
+    std::optional<uint64_t> seed;  ///< overrides the sampler's seed when set
+    bool progress = true;       ///< progress/ETA on stderr
+    const Image *reference = nullptr;    ///< per-pass error (for --convergence)
+    std::string convergence_csv;         ///< write "pass,elapsed_s,spp,mse,relmse" rows here
+};
+
+struct RenderResult {
+    Image image;
+    double wall_s = 0;       ///< rendering time (excludes loading and BVH build)
+    int spp = 0;             ///< samples per pixel actually rendered
+    int passes = 0;
+    uint64_t rays = 0;       ///< all rays (camera, extension and shadow)
+    uint64_t shadow_rays = 0;
+    double rays_per_s = 0;
+    long nan_count = 0;      ///< NaN/Inf samples caught by the film (counted as 0)
+    int threads = 0;
+};
+
+RenderResult render(const Scene &scene, const RenderOptions &opts);
+
+/// Peak resident memory of this process in MB (getrusage).
+double peak_rss_mb();
+
+}  // namespace meso
