@@ -36,6 +36,7 @@ void Scene::build() {
 
 bool Scene::intersect(const Ray &ray, SurfaceInteraction &si) const { return m_accel->intersect(ray, si); }
 bool Scene::occluded(const Ray &ray) const { return m_accel->occluded(ray); }
+float Scene::intersect_t(const Ray &ray) const { return m_accel->intersect_t(ray); }
 
 const Light *Scene::sample_light(float u, float &pmf) const {
     if (lights.empty()) {

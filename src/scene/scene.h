@@ -33,6 +33,8 @@ public:
     void build();
     bool intersect(const Ray &ray, SurfaceInteraction &si) const;
     bool occluded(const Ray &ray) const;
+    /// Closest-hit distance only (bare Embree, for benchmarks); Infinity on a miss.
+    float intersect_t(const Ray &ray) const;
     /// Choose a light in proportion to its power; pmf returned. nullptr if no lights.
     const Light *sample_light(float u, float &pmf) const;
     float light_pmf(const Light *light) const;
