@@ -1,0 +1,174 @@
+// Image pixels and file I/O through OpenImageIO.
+//
+// Reading: any format OpenImageIO knows, converted to 32-bit float, all channels kept.
+// 8/16-bit integer files are sRGB-encoded by convention (PNG, JPEG, TIFF colour
+// textures); with linearize_srgb they are decoded to linear unless the file itself says
+// it is linear (oiio:ColorSpace "Linear"). Alpha is never decoded.
+// Writing: EXR as full 32-bit float (half would clip above 65504 and quantise dark
+// values: openexr #237); PNG as 8-bit sRGB. Both write "<path>.tmp-<pid>" first and
+// rename it into place, so a failed write never leaves a partial file under <path>.
+#include <OpenImageIO/imageio.h>
+#include <unistd.h>
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fmt/format.h>
+#include "core/error.h"
+#include "image/image.h"
+
+namespace meso {
+
+namespace fs = std::filesystem;
+using OIIO::ImageInput;
+using OIIO::ImageOutput;
+using OIIO::ImageSpec;
+using OIIO::TypeDesc;
+
+Spectrum Image::rgb(int x, int y) const {
+    const float *p = &data[(size_t(y) * width + x) * channels];
+    if (channels >= 3) return Spectrum(p[0], p[1], p[2]);
+    return Spectrum(p[0]);  // grey (+ alpha)
+}
+
+void Image::set_rgb(int x, int y, Spectrum s) {
+    float *p = &data[(size_t(y) * width + x) * channels];
+    if (channels >= 3) {
+        p[0] = s.r, p[1] = s.g, p[2] = s.b;
+    } else {
+        p[0] = s.luminance();  // grey image: store the luminance
+    }
+}
+
+float linear_to_srgb(float v) {
+    if (!(v > 0.f)) return 0.f * v;  // keeps -0/0; NaN stays NaN
+    if (v <= 0.0031308f) return 12.92f * v;
+    return 1.055f * std::pow(v, 1.f / 2.4f) - 0.055f;
+}
+
+float srgb_to_linear(float v) {
+    if (!(v > 0.f)) return 0.f * v;
+    if (v <= 0.04045f) return v * (1.f / 12.92f);
+    return std::pow((v + 0.055f) * (1.f / 1.055f), 2.4f);
+}
+
+namespace {
+
+std::string trimmed(std::string s, const char *fallback) {
+    while (!s.empty() && (s.back() == '\n' || s.back() == ' ' || s.back() == '\r')) s.pop_back();
+    // OIIO may accumulate several lines; one line is enough for the user.
+    std::replace(s.begin(), s.end(), '\n', ';');
+    return s.empty() ? std::string(fallback) : s;
+}
+
+[[noreturn]] void read_error(const std::string &path, const std::string &why) {
+    throw MesoError(fmt::format("{}: cannot read image: {}", path, why));
+}
+
+[[noreturn]] void write_error(const std::string &path, const std::string &why) {
+    throw MesoError(fmt::format("cannot write '{}': {}", path, why));
+}
+
+/// Writes `pixels` (width x height x nchannels of `type`) with the OIIO plugin `format`
+/// to a temporary file next to `path`, then renames it into place.
+void write_atomically(const std::string &path, const char *format, const ImageSpec &spec, const void *pixels) {
+    fs::path parent = fs::path(path).parent_path();
+    std::error_code ec;
+    if (!parent.empty() && !fs::is_directory(parent, ec))
+        write_error(path, fmt::format("directory '{}' does not exist", parent.string()));
+    if (fs::is_directory(path, ec)) write_error(path, "it is a directory");
+
+    std::string tmp = fmt::format("{}.tmp-{}", path, long(getpid()));
+    auto fail = [&](const std::string &why) {
+        fs::remove(tmp, ec);
+        write_error(path, why);
+    };
+    auto out = ImageOutput::create(format);
+    if (!out) fail(trimmed(OIIO::geterror(), "no image writer"));
+    if (!out->open(tmp, spec)) fail(trimmed(out->geterror(), "cannot open file"));
+    bool ok = out->write_image(spec.format, pixels);
+    std::string err = ok ? std::string() : trimmed(out->geterror(), "write failed");
+    if (!out->close() && ok) {
+        ok = false;
+        err = trimmed(out->geterror(), "close failed");
+    }
+    out.reset();
+    if (!ok) fail(err);
+    fs::rename(tmp, path, ec);
+    if (ec) fail(ec.message());
+}
+
+void check_image(const std::string &path, const Image &img) {
+    if (img.width <= 0 || img.height <= 0 || img.channels <= 0)
+        write_error(path, fmt::format("empty image ({}x{}, {} channels)", img.width, img.height, img.channels));
+    if (img.data.size() != size_t(img.width) * img.height * img.channels)
+        write_error(path, "pixel buffer size does not match the image size");
+}
+
+}  // namespace
+
+Image read_image(const std::string &path, bool linearize_srgb) {
+    std::error_code ec;
+    if (!fs::exists(path, ec)) read_error(path, "file does not exist");
+    if (fs::is_directory(path, ec)) read_error(path, "it is a directory");
+    auto in = ImageInput::open(path);
+    if (!in) read_error(path, trimmed(OIIO::geterror(), "unknown format"));
+    const ImageSpec &spec = in->spec();
+    if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth > 1)
+        read_error(path, fmt::format("unsupported image size {}x{}x{} with {} channels", spec.width, spec.height,
+                                     spec.depth, spec.nchannels));
+    Image img(spec.width, spec.height, spec.nchannels);
+    if (!in->read_image(0, 0, 0, spec.nchannels, TypeDesc::FLOAT, img.data.data()))
+        read_error(path, trimmed(in->geterror(), "read failed"));
+    if (in->has_error()) read_error(path, trimmed(in->geterror(), "read failed"));
+
+    TypeDesc::BASETYPE base = TypeDesc::BASETYPE(spec.format.basetype);
+    bool integer_encoded = base == TypeDesc::UINT8 || base == TypeDesc::UINT16;
+    std::string cs = spec.get_string_attribute("oiio:ColorSpace");
+    bool says_linear = cs == "Linear" || cs == "linear" || cs == "lin_srgb" || cs == "scene_linear";
+    if (linearize_srgb && integer_encoded && !says_linear) {
+        for (size_t i = 0; i < img.data.size(); ++i) {
+            int c = int(i % size_t(img.channels));
+            if (c == spec.alpha_channel) continue;
+            img.data[i] = srgb_to_linear(img.data[i]);
+        }
+    }
+    return img;
+}
+
+void write_exr(const std::string &path, const Image &img) {
+    check_image(path, img);
+    ImageSpec spec(img.width, img.height, img.channels, TypeDesc::FLOAT);
+    spec.channelnames.clear();
+    spec.alpha_channel = -1;
+    static const char *rgba[] = {"R", "G", "B", "A"};
+    for (int c = 0; c < img.channels; ++c) {
+        if (img.channels == 1) spec.channelnames.push_back("Y");
+        else if (img.channels == 2) spec.channelnames.push_back(c == 0 ? "Y" : "A");
+        else if (c < 4) spec.channelnames.push_back(rgba[c]);
+        else spec.channelnames.push_back(fmt::format("channel{}", c));
+    }
+    if (img.channels == 2) spec.alpha_channel = 1;
+    if (img.channels >= 4) spec.alpha_channel = 3;
+    spec.attribute("compression", "zip");
+    write_atomically(path, "openexr", spec, img.data.data());
+}
+
+void write_png(const std::string &path, const Image &img, float exposure_stops) {
+    check_image(path, img);
+    float scale = std::exp2(exposure_stops);
+    std::vector<uint8_t> px(size_t(img.width) * img.height * 3);
+    for (int y = 0; y < img.height; ++y)
+        for (int x = 0; x < img.width; ++x) {
+            Spectrum s = img.rgb(x, y);
+            for (int c = 0; c < 3; ++c) {
+                float v = s[c] * scale;
+                v = std::isnan(v) ? 0.f : clamp(v, 0.f, 1.f);
+                px[(size_t(y) * img.width + x) * 3 + c] = uint8_t(std::lround(linear_to_srgb(v) * 255.f));
+            }
+        }
+    ImageSpec spec(img.width, img.height, 3, TypeDesc::UINT8);
+    spec.attribute("oiio:ColorSpace", "sRGB");
+    write_atomically(path, "png", spec, px.data());
+}
+
+}  // namespace meso
