@@ -1,0 +1,228 @@
+// `area` light: a diffuse emitter attached to a shape (the scene loader calls set_shape()).
+//
+// Model: constant radiance L leaving the surface on the side of its geometric normal
+// (both sides when two_sided). For triangle meshes the geometric normal is the
+// counter-clockwise one, cross(p1 - p0, p2 - p0), flipped to the side of the interpolated
+// vertex normal when the mesh has normals — the same rule the mesh shape uses for si.ng.
+// Power: pi · area · mean(L) (× 2 when two-sided).
+//
+// Sampling (pbrt-v4 Triangle::Sample / DiffuseAreaLight, Mitsuba 3 `area`):
+//   * triangle meshes: a triangle is chosen with probability area_t / area (Distribution1D),
+//     then
+//       "solid_angle": a direction uniform in the triangle's spherical triangle (Arvo 1995,
+//                      see spherical_triangle.h); pdf = P(t) / Omega_t. When Omega_t, seen
+//                      from the reference point, is below 3e-4 sr (float trigonometry no
+//                      longer resolves it; pbrt's MinSphericalSampleArea) or above 6.22 sr
+//                      (nearly a hemisphere: the sampling becomes unstable; pbrt's
+//                      MaxSphericalSampleArea), this triangle is area-sampled instead. The
+//                      decision is a deterministic function of (ctx.p, triangle), so pdf()
+//                      reproduces it exactly.
+//       "area":        a point uniform in the triangle; pdf = P(t) / area_t · d^2 / |cos|
+//                      = d^2 / (area · |cos theta_light|).
+//   * other shapes (analytic sphere): shape->sample_area() (uniform by area, pdf 1/area)
+//     converted to solid angle, whatever `sampling` says.
+// pdf(ctx, wi, hit) is the density of the point hit.p on triangle hit.prim in the measure
+// above, so next-event estimation and BSDF sampling combine correctly with MIS even when a
+// direction crosses several triangles of the light.
+// sample() returns false when the sampled point emits nothing towards ctx.p (back side of
+// a one-sided emitter) or the configuration is degenerate (pdf not finite).
+//
+// Parameters (Mitsuba 3 names where they exist):
+//   radiance    spectrum  default 1               emitted radiance, >= 0
+//   two_sided   bool      default false           emit on both sides
+//   sampling    string    default "solid_angle"   "solid_angle" or "area"
+#include <fmt/format.h>
+#include <vector>
+#include "core/error.h"
+#include "geometry/shape.h"
+#include "lights/spherical_triangle.h"
+#include "render/light.h"
+#include "sampling/distribution.h"
+#include "sampling/warp.h"
+#include "scene/properties.h"
+#include "scene/registry.h"
+
+namespace meso {
+namespace {
+
+constexpr double MinSphericalSampleArea = 3e-4;  // sr
+constexpr double MaxSphericalSampleArea = 6.22;  // sr
+
+class AreaLight final : public Light {
+public:
+    AreaLight(Spectrum L, bool two_sided, bool solid_angle)
+        : m_radiance(L), m_two_sided(two_sided), m_solid_angle(solid_angle) {}
+
+    void set_shape(const Shape *shape) override {
+        m_shape = shape;
+        build();
+    }
+    // The shape is final by now; rebuild in case it was bound before being transformed.
+    void preprocess(Vec3, float) override { build(); }
+
+    bool sample(const LightSampleContext &ctx, Vec2 u, LightSample &out) const override {
+        if (!m_shape || !(m_area > 0.f)) return false;
+        Vec3 p, n;
+        float pdf;
+        if (m_mesh) {
+            float pmf, ux;
+            size_t t = m_tri_distr.sample_discrete(u.x, &pmf, &ux);
+            if (!(pmf > 0.f)) return false;
+            Vec3 p0, p1, p2;
+            triangle(t, p0, p1, p2);
+            bool spherical = use_spherical(ctx.p, p0, p1, p2);
+            double b[3];
+            if (spherical) {
+                if (!sphtri::sample(ctx.p, p0, p1, p2, Vec2(ux, u.y), b)) return false;
+            } else {
+                Vec2 bb = square_to_uniform_triangle(Vec2(ux, u.y));
+                b[0] = bb.x;
+                b[1] = bb.y;
+                b[2] = 1.0 - bb.x - bb.y;
+            }
+            p = p0 * float(b[0]) + p1 * float(b[1]) + p2 * float(b[2]);
+            n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
+            Vec3 d = p - ctx.p;
+            float d2 = length_squared(d);
+            if (!(d2 > 0.f)) return false;
+            float dist = std::sqrt(d2);
+            out.wi = d / dist;
+            out.dist = dist;
+            pdf = density(ctx, t, p0, p1, p2, spherical, n, out.wi, d2, pmf);
+        } else {
+            PositionSample ps = m_shape->sample_area(u.x, u);
+            p = ps.p;
+            n = ps.n;
+            Vec3 d = p - ctx.p;
+            float d2 = length_squared(d);
+            if (!(d2 > 0.f)) return false;
+            float dist = std::sqrt(d2);
+            out.wi = d / dist;
+            out.dist = dist;
+            float cos_l = absdot(n, out.wi);
+            pdf = cos_l > 0.f ? d2 / (cos_l * m_area) : 0.f;
+        }
+        if (!(pdf > 0.f) || !std::isfinite(pdf)) return false;
+        out.pdf = pdf;
+        out.delta = false;
+        out.L = emitted(n, -out.wi);
+        return !out.L.is_black();
+    }
+
+    float pdf(const LightSampleContext &ctx, const Vec3 &wi, const LightHit &hit) const override {
+        if (!m_shape || !(m_area > 0.f)) return 0.f;
+        Vec3 d = hit.p - ctx.p;
+        float d2 = length_squared(d);
+        if (!(d2 > 0.f)) return 0.f;
+        float pdf;
+        if (m_mesh) {
+            if (hit.prim >= m_mesh->triangle_count()) return 0.f;
+            size_t t = hit.prim;
+            float pmf = m_tri_distr.pmf(t);
+            if (!(pmf > 0.f)) return 0.f;
+            Vec3 p0, p1, p2;
+            triangle(t, p0, p1, p2);
+            bool spherical = use_spherical(ctx.p, p0, p1, p2);
+            pdf = density(ctx, t, p0, p1, p2, spherical, m_tri_normal[t], wi, d2, pmf);
+        } else {
+            float cos_l = absdot(hit.n, wi);
+            pdf = cos_l > 0.f ? d2 / (cos_l * m_area) : 0.f;
+        }
+        return std::isfinite(pdf) ? pdf : 0.f;
+    }
+
+    Spectrum eval(const LightHit &hit, const Vec3 &w) const override { return emitted(hit.n, w); }
+    float power() const override { return Pi * m_area * m_radiance.average() * (m_two_sided ? 2.f : 1.f); }
+    std::string to_string() const override {
+        return fmt::format("area light, radiance [{}, {}, {}]{}, {} sampling, area {:.4g}, {} triangles{}",
+                           m_radiance.r, m_radiance.g, m_radiance.b, m_two_sided ? ", two-sided" : "",
+                           m_mesh ? (m_solid_angle ? "solid-angle" : "area") : "area", m_area,
+                           m_mesh ? m_mesh->triangle_count() : 0, m_shape ? "" : " (no shape bound)");
+    }
+
+private:
+    Spectrum emitted(Vec3 n, Vec3 w) const {
+        return (m_two_sided || dot(n, w) > 0.f) ? m_radiance : Spectrum(0.f);
+    }
+    void triangle(size_t t, Vec3 &p0, Vec3 &p1, Vec3 &p2) const {
+        const uint32_t *idx = &m_mesh->indices[3 * t];
+        p0 = m_mesh->positions[idx[0]];
+        p1 = m_mesh->positions[idx[1]];
+        p2 = m_mesh->positions[idx[2]];
+    }
+    bool use_spherical(Vec3 p, Vec3 p0, Vec3 p1, Vec3 p2) const {
+        if (!m_solid_angle) return false;
+        double omega = sphtri::solid_angle(p, p0, p1, p2);
+        return omega >= MinSphericalSampleArea && omega <= MaxSphericalSampleArea;
+    }
+    /// Solid-angle density of the light point at distance^2 d2 along wi on triangle t.
+    float density(const LightSampleContext &ctx, size_t t, Vec3 p0, Vec3 p1, Vec3 p2, bool spherical, Vec3 n,
+                  Vec3 wi, float d2, float pmf) const {
+        if (spherical) return float(double(pmf) / sphtri::solid_angle(ctx.p, p0, p1, p2));
+        float cos_l = absdot(n, wi);
+        float area_t = m_tri_area[t];
+        if (!(cos_l > 0.f) || !(area_t > 0.f)) return 0.f;
+        return pmf / area_t * d2 / cos_l;
+    }
+    Vec3 emission_normal(size_t t, float b0, float b1, float b2) const {
+        Vec3 ng = m_tri_normal[t];
+        if (!m_mesh->normals.empty()) {
+            const uint32_t *idx = &m_mesh->indices[3 * t];
+            Vec3 ns = m_mesh->normals[idx[0]] * b0 + m_mesh->normals[idx[1]] * b1 + m_mesh->normals[idx[2]] * b2;
+            if (dot(ng, ns) < 0.f) ng = -ng;
+        }
+        return ng;
+    }
+    void build() {
+        m_mesh = m_shape ? m_shape->mesh() : nullptr;
+        m_tri_area.clear();
+        m_tri_normal.clear();
+        if (!m_shape) {
+            m_area = 0.f;
+            return;
+        }
+        if (!m_mesh) {
+            m_area = m_shape->surface_area();
+            return;
+        }
+        size_t n = m_mesh->triangle_count();
+        m_tri_area.resize(n);
+        m_tri_normal.resize(n);
+        double total = 0;
+        for (size_t t = 0; t < n; ++t) {
+            Vec3 p0, p1, p2;
+            triangle(t, p0, p1, p2);
+            Vec3 c = cross(p1 - p0, p2 - p0);
+            float len = length(c);
+            bool ok = len > 0.f && std::isfinite(len);
+            m_tri_area[t] = ok ? 0.5f * len : 0.f;
+            m_tri_normal[t] = ok ? c / len : Vec3(0, 0, 0);
+            total += m_tri_area[t];
+        }
+        m_area = float(total);
+        m_tri_distr = Distribution1D(m_tri_area);
+    }
+
+    Spectrum m_radiance;
+    bool m_two_sided, m_solid_angle;
+    const Shape *m_shape = nullptr;
+    const TriangleMesh *m_mesh = nullptr;
+    std::vector<float> m_tri_area;
+    std::vector<Vec3> m_tri_normal;  ///< counter-clockwise unit normals (zero if degenerate)
+    Distribution1D m_tri_distr;
+    float m_area = 0.f;
+};
+
+MESO_REGISTER_LIGHT("area", "diffuse area emitter on a shape (radiance, two_sided, sampling)",
+                    [](const Properties &p) -> std::shared_ptr<Light> {
+                        Spectrum L = p.get_spectrum("radiance", Spectrum(1.f));
+                        if (L.r < 0 || L.g < 0 || L.b < 0) p.fail("radiance", "must be non-negative");
+                        bool two_sided = p.get_bool("two_sided", false);
+                        std::string s = p.get_string("sampling", "solid_angle");
+                        if (s != "solid_angle" && s != "area")
+                            p.fail("sampling", fmt::format("expected \"solid_angle\" or \"area\", got \"{}\"", s));
+                        return std::make_shared<AreaLight>(L, two_sided, s == "solid_angle");
+                    });
+
+}  // namespace
+}  // namespace meso

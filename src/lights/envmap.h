@@ -1,0 +1,59 @@
+// Image-based environment light (lat-long map), exposed so that tests and other modules
+// (e.g. quadrature over the environment) can build one from an in-memory image and look
+// up radiance by direction. Scene files create it as {"type": "envmap"}; see envmap.cpp
+// for the model, the mapping convention and the parameters.
+#pragma once
+#include <string>
+#include "core/transform.h"
+#include "image/image.h"
+#include "render/light.h"
+#include "sampling/distribution.h"
+
+namespace meso {
+
+class EnvMapLight final : public Light {
+public:
+    /// `img`: linear radiance, 1 (grey), 2 (grey + alpha), 3 or 4 (RGB[A]) channels, top row
+    /// = +y. `to_world` must be a rotation (orthonormal 3x3; translation is ignored).
+    /// Throws MesoError (without location) on an empty image, non-finite or negative
+    /// pixels, or a to_world that is not a rotation.
+    EnvMapLight(const Image &img, float scale, const Transform &to_world, std::string name = "");
+
+    // Mapping of local directions to [0,1)^2 (Mitsuba 3 `envmap`):
+    //   u = atan2(d.x, -d.z) / (2 pi)  (wrapped to [0,1)),  v = acos(d.y) / pi.
+    static Vec2 direction_to_uv(Vec3 d_local);
+    static Vec3 uv_to_direction(Vec2 uv);
+
+    /// Radiance arriving from world direction `d` (pointing from the scene to the
+    /// environment), bilinearly interpolated between texel centres (u wraps, v clamps).
+    Spectrum radiance(Vec3 d_world) const;
+    /// ∫ L dω over the sphere, averaged over RGB (sr·W/m²/sr); power() = pi r^2 times this.
+    double radiance_integral() const { return m_integral; }
+    size_t memory_bytes() const;
+    int width() const { return m_w; }
+    int height() const { return m_h; }
+
+    void preprocess(Vec3 scene_center, float scene_radius) override { m_radius = scene_radius; }
+    bool sample(const LightSampleContext &ctx, Vec2 u, LightSample &out) const override;
+    float pdf(const LightSampleContext &ctx, const Vec3 &wi, const LightHit &hit) const override;
+    /// w = -ray.d (as for area lights): returns radiance(-w), the environment seen along ray.d.
+    Spectrum eval(const LightHit &hit, const Vec3 &w) const override;
+    bool is_infinite() const override { return true; }
+    float power() const override;
+    std::string to_string() const override;
+
+private:
+    float pdf_world(Vec3 wi) const;
+    Spectrum texel(int x, int y) const;
+
+    int m_w = 0, m_h = 0;
+    std::vector<Spectrum> m_texels;  ///< linear radiance × scale, row-major, top row first
+    Transform m_to_world;
+    Distribution2D m_distr;          ///< over (u, v), cell weights: luminance × sin(theta)
+    double m_integral = 0;
+    float m_radius = 1.f;
+    float m_scale = 1.f;
+    std::string m_name;
+};
+
+}  // namespace meso

@@ -1,0 +1,73 @@
+// MIP pyramid of an N-channel float image with nearest, bilinear and trilinear lookups.
+// Reusable for anything stored per texel (colours, heights, slope moments): channels are
+// plain floats, and every level is the exact area average of level 0 (means are kept).
+//
+// Conventions:
+//   * uv (0,0) is the top-left corner of the image, u to the right, v DOWN (row 0 first;
+//     glTF and Mitsuba 3 conventions). Texel (x, y) of a w x h level covers
+//     [x/w, (x+1)/w] x [y/h, (y+1)/h]; its centre is at ((x + .5)/w, (y + .5)/h).
+//   * Level 0 is the input; level l+1 has size max(1, floor(w_l / 2)) x max(1, floor(h_l / 2))
+//     and is the box filter of level l over each output texel's footprint — the 2x2 box
+//     for even sizes, a 2.5-, 3.5-... texel box with fractional edge weights for odd ones.
+//     This is exact area averaging, so every level has the same mean as level 0.
+//   * Level selection: footprint width in level-0 texels
+//         width = max(|(dudx·w, dvdx·h)|, |(dudy·w, dvdy·h)|),
+//     level = clamp(log2(width), 0, levels-1) (a footprint of k texels picks log2 k);
+//     zero footprint means level 0.
+#pragma once
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace meso {
+
+enum class WrapMode { Repeat, Clamp, Mirror };
+
+/// Parses "repeat" | "clamp" | "mirror"; returns false for anything else.
+bool parse_wrap_mode(const std::string &s, WrapMode &out);
+
+class MipMap {
+public:
+    MipMap() = default;
+    /// `data`: width x height x channels floats, row-major, top row first, interleaved.
+    MipMap(int width, int height, int channels, std::vector<float> data, WrapMode wrap = WrapMode::Repeat);
+
+    int channels() const { return m_channels; }
+    int levels() const { return int(m_levels.size()); }
+    int width(int level = 0) const { return m_levels[level].w; }
+    int height(int level = 0) const { return m_levels[level].h; }
+    WrapMode wrap() const { return m_wrap; }
+    /// Texel of a level (x, y already inside the level).
+    const float *texel(int level, int x, int y) const {
+        const Level &L = m_levels[level];
+        return &L.data[(size_t(y) * L.w + x) * m_channels];
+    }
+    /// Mean of a level, per channel (out has channels() entries).
+    void level_mean(int level, float *out) const;
+
+    /// Continuous level for a uv footprint (ray-differential derivatives).
+    float level_for_footprint(float dudx, float dudy, float dvdx, float dvdy) const;
+
+    // Lookups write channels() floats to `out`.
+    void nearest(int level, float u, float v, float *out) const;
+    void bilinear(int level, float u, float v, float *out) const;
+    /// Linear blend of bilinear lookups of the two levels around the continuous `level`.
+    void trilinear(float level, float u, float v, float *out) const;
+    /// trilinear(level_for_footprint(...)).
+    void filtered(float u, float v, float dudx, float dudy, float dvdx, float dvdy, float *out) const;
+
+    size_t memory_bytes() const;
+
+private:
+    struct Level {
+        int w = 0, h = 0;
+        std::vector<float> data;
+    };
+    int wrap_index(int i, int n) const;
+
+    int m_channels = 0;
+    WrapMode m_wrap = WrapMode::Repeat;
+    std::vector<Level> m_levels;
+};
+
+}  // namespace meso

@@ -1,0 +1,817 @@
+// Lights: delta lights against their closed forms; area lights (triangle meshes in both
+// sampling modes, analytic spheres) against Lambert's polygon irradiance and for pdf
+// consistency; environment maps for mapping convention, pdf normalisation, sampling
+// histograms (chi-square) and error messages. Fixed seeds; tolerances are 5 standard
+// errors of the estimator unless stated otherwise.
+#include <gtest/gtest.h>
+#include <OpenImageIO/imageio.h>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <unistd.h>
+#include "core/error.h"
+#include "core/transform.h"
+#include "geometry/shape.h"
+#include "lights/envmap.h"
+#include "lights/spherical_triangle.h"
+#include "render/light.h"
+#include "sampling/rng.h"
+#include "sampling/warp.h"
+#include "scene/properties.h"
+#include "scene/registry.h"
+
+using namespace meso;
+using json = nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::shared_ptr<Light> make_light(const json &j, std::shared_ptr<LoadContext> ctx = nullptr) {
+    if (!ctx) ctx = std::make_shared<LoadContext>();
+    return create_light(Properties(j, "lights[0]", ctx));
+}
+
+std::string light_error(const json &j, std::shared_ptr<LoadContext> ctx = nullptr) {
+    try {
+        make_light(j, ctx);
+    } catch (const MesoError &e) {
+        return e.what();
+    }
+    return "(no error)";
+}
+
+/// Test-only triangle-mesh shape (only what area lights use).
+class TestMeshShape final : public Shape {
+public:
+    explicit TestMeshShape(TriangleMesh m) : m_mesh(std::move(m)) {}
+    RTCGeometry build_embree(RTCDevice) const override { return nullptr; }
+    void fill_interaction(const Ray &, float, uint32_t, float, float, SurfaceInteraction &) const override {}
+    float surface_area() const override {
+        double a = 0;
+        for (size_t t = 0; t < m_mesh.triangle_count(); ++t) a += tri_area(t);
+        return float(a);
+    }
+    PositionSample sample_area(float, Vec2) const override { return {}; }  // not used for meshes
+    size_t primitive_count() const override { return m_mesh.triangle_count(); }
+    size_t memory_bytes() const override { return 0; }
+    std::string to_string() const override { return "test mesh"; }
+    const TriangleMesh *mesh() const override { return &m_mesh; }
+    Vec3 vertex(size_t t, int k) const { return m_mesh.positions[m_mesh.indices[3 * t + k]]; }
+    double tri_area(size_t t) const { return 0.5 * length(cross(vertex(t, 1) - vertex(t, 0), vertex(t, 2) - vertex(t, 0))); }
+    Vec3 normal(size_t t) const { return normalize(cross(vertex(t, 1) - vertex(t, 0), vertex(t, 2) - vertex(t, 0))); }
+
+private:
+    TriangleMesh m_mesh;
+};
+
+/// Test-only analytic sphere (uniform area sampling, no mesh).
+class TestSphereShape final : public Shape {
+public:
+    TestSphereShape(Vec3 c, float r) : m_c(c), m_r(r) {}
+    RTCGeometry build_embree(RTCDevice) const override { return nullptr; }
+    void fill_interaction(const Ray &, float, uint32_t, float, float, SurfaceInteraction &) const override {}
+    float surface_area() const override { return 4.f * Pi * m_r * m_r; }
+    PositionSample sample_area(float, Vec2 u) const override {
+        PositionSample ps;
+        ps.n = square_to_uniform_sphere(u);
+        ps.p = m_c + ps.n * m_r;
+        ps.pdf_area = 1.f / surface_area();
+        return ps;
+    }
+    size_t primitive_count() const override { return 1; }
+    size_t memory_bytes() const override { return 0; }
+    std::string to_string() const override { return "test sphere"; }
+
+private:
+    Vec3 m_c;
+    float m_r;
+};
+
+TriangleMesh make_mesh(const std::vector<Vec3> &pos, const std::vector<uint32_t> &idx) {
+    TriangleMesh m;
+    m.positions = pos;
+    m.indices = idx;
+    return m;
+}
+
+/// Lambert's formula for the irradiance at p (normal n) from a uniform polygon of radiance
+/// L entirely above the horizon: E = L/2 |sum_i theta_i n·(r_i x r_i+1)/|r_i x r_i+1||.
+double lambert_irradiance(Vec3 p, Vec3 n, const std::vector<Vec3> &verts, double L) {
+    using namespace sphtri;
+    double sum = 0;
+    for (size_t i = 0; i < verts.size(); ++i) {
+        DVec3 r0 = normalize(DVec3(verts[i]) - DVec3(p)), r1 = normalize(DVec3(verts[(i + 1) % verts.size()]) - DVec3(p));
+        DVec3 c = cross(r0, r1);
+        double theta = std::atan2(length(c), dot(r0, r1));
+        sum += theta * dot(DVec3(n), normalize(c));
+    }
+    return 0.5 * L * std::abs(sum);
+}
+
+/// Ray/triangle intersection in double (Moller-Trumbore); returns t > 0 or -1.
+double intersect_triangle(Vec3 o, Vec3 d, Vec3 a, Vec3 b, Vec3 c) {
+    using namespace sphtri;
+    DVec3 e1 = DVec3(b) - DVec3(a), e2 = DVec3(c) - DVec3(a), dd(d);
+    DVec3 pv = cross(dd, e2);
+    double det = dot(e1, pv);
+    if (std::abs(det) < 1e-300) return -1;
+    DVec3 tv = DVec3(o) - DVec3(a);
+    double u = dot(tv, pv) / det;
+    if (u < 0 || u > 1) return -1;
+    DVec3 qv = cross(tv, e1);
+    double v = dot(dd, qv) / det;
+    if (v < 0 || u + v > 1) return -1;
+    double t = dot(e2, qv) / det;
+    return t > 0 ? t : -1;
+}
+
+struct MeanStd {
+    double mean, stderr_;
+};
+MeanStd mean_std(double sum, double sum2, long n) {
+    double m = sum / n;
+    double var = std::max(0.0, sum2 / n - m * m);
+    return {m, std::sqrt(var / n)};
+}
+
+/// A triangle (ordered so that it emits towards the origin) above the xy-plane.
+std::vector<Vec3> test_triangle() {
+    std::vector<Vec3> v = {{-1.f, -0.5f, 2.f}, {1.f, -0.3f, 2.2f}, {0.2f, 1.f, 1.8f}};
+    Vec3 n = cross(v[1] - v[0], v[2] - v[0]);
+    if (dot(n, v[0]) > 0) std::swap(v[1], v[2]);  // normal must face the origin
+    return v;
+}
+
+/// Reference points: (position, receiver normal), placed relative to the light's plane
+/// (centroid c, emitting normal n, an in-plane direction e) so that every point is on the
+/// emitting side and sees all of the light above its horizon.
+struct RefPoint {
+    const char *name;
+    Vec3 p, n;
+};
+std::vector<RefPoint> ref_points(const TestMeshShape &shape) {
+    const TriangleMesh &m = *shape.mesh();
+    Vec3 c(0, 0, 0);
+    for (auto &v : m.positions) c += v;
+    c = c / float(m.positions.size());
+    Vec3 n = shape.normal(0);
+    Vec3 e = normalize(m.positions[0] - c);
+    e = normalize(e - n * dot(n, e));
+    Vec3 far = c + n * 80.f + e * 30.f;
+    return {
+        {"near", c + n * 2.f, -n},
+        {"close", c + n * 0.3f + e * 0.2f, -n},
+        {"far", far, normalize(c - far)},             // Omega < 3e-4 sr: area fallback
+        {"grazing", c + e * 4.f + n * 0.05f, -e},     // nearly in the light's plane
+        {"grazing_far", c + e * 300.f + n * 0.1f, -e} // both at once
+    };
+}
+
+/// Irradiance estimate from light sampling (no visibility); returns mean and std error.
+MeanStd estimate_irradiance(const Light &light, Vec3 p, Vec3 n, int N, uint64_t seed) {
+    PCG32 rng(seed);
+    double s = 0, s2 = 0;
+    LightSampleContext ctx{p, n};
+    for (int i = 0; i < N; ++i) {
+        LightSample ls;
+        double f = 0;
+        if (light.sample(ctx, {rng.next_float(), rng.next_float()}, ls)) {
+            EXPECT_TRUE(std::isfinite(ls.pdf) && ls.pdf > 0.f);
+            EXPECT_TRUE(ls.L.is_finite());
+            f = ls.L.average() * std::max(0.f, dot(ls.wi, n)) / ls.pdf;
+        }
+        s += f;
+        s2 += f * f;
+    }
+    return mean_std(s, s2, N);
+}
+
+/// Monte Carlo estimate of ∫ pdf dω over the directions that hit the mesh, with directions
+/// uniform in a cone that contains it. `hit_fraction` returns the share of directions
+/// that hit (the estimate is only meaningful when it is not tiny).
+MeanStd integrate_pdf_cone(const Light &light, const TestMeshShape &shape, Vec3 p, int N, uint64_t seed,
+                           double &hit_fraction) {
+    // Double precision throughout: for tiny cones a float cos(theta) is quantised into a few
+    // rings, which is far from uniform on the scale of a sliver seen edge-on.
+    using namespace sphtri;
+    const TriangleMesh &m = *shape.mesh();
+    DVec3 c, o(p);
+    for (auto &v : m.positions) c = c + DVec3(v);
+    DVec3 axis = normalize(c * (1.0 / m.positions.size()) - o);
+    double one_minus_cos = 0;  // 1 - cos of the widest vertex, computed without cancellation
+    for (auto &v : m.positions) {
+        DVec3 d = normalize(DVec3(v) - o);
+        one_minus_cos = std::max(one_minus_cos, 0.5 * dot(d - axis, d - axis));
+    }
+    one_minus_cos = std::min(2.0, one_minus_cos * 1.05);  // a little margin
+    DVec3 s_ax = gram_schmidt(std::abs(axis.x) < 0.9 ? DVec3(1, 0, 0) : DVec3(0, 1, 0), axis);
+    DVec3 t_ax = cross(axis, s_ax);
+    double cone_pdf = 1.0 / (2 * M_PI * one_minus_cos);
+    PCG32 rng(seed);
+    double s = 0, s2 = 0;
+    long hits = 0;
+    for (int i = 0; i < N; ++i) {
+        double omc = rng.next_double() * one_minus_cos;  // 1 - cos(theta), uniform
+        double sin_t = std::sqrt(std::max(0.0, omc * (2 - omc))), phi = 2 * M_PI * rng.next_double();
+        DVec3 wd = (1 - omc) * axis + (sin_t * std::cos(phi)) * s_ax + (sin_t * std::sin(phi)) * t_ax;
+        Vec3 w(float(wd.x), float(wd.y), float(wd.z));
+        double best = Infinity;
+        size_t prim = 0;
+        for (size_t t = 0; t < m.triangle_count(); ++t) {
+            double th = intersect_triangle(p, w, shape.vertex(t, 0), shape.vertex(t, 1), shape.vertex(t, 2));
+            if (th > 0 && th < best) best = th, prim = t;
+        }
+        double f = 0;
+        if (best < Infinity) {
+            ++hits;
+            LightHit hit{p + w * float(best), shape.normal(prim), uint32_t(prim)};
+            f = light.pdf(LightSampleContext{p, Vec3()}, w, hit) / cone_pdf;
+        }
+        s += f;
+        s2 += f * f;
+    }
+    hit_fraction = double(hits) / N;
+    return mean_std(s, s2, N);
+}
+
+/// The same integral written over the light's surface, ∫ pdf(ω(y)) |cos θ_y| / d^2 dA(y),
+/// with points y uniform by area (works for slivers seen edge-on, where a cone of
+/// directions almost never hits). Planar lights only (y is then the first hit along ω).
+MeanStd integrate_pdf_area(const Light &light, const TestMeshShape &shape, Vec3 p, int N, uint64_t seed) {
+    const TriangleMesh &m = *shape.mesh();
+    double total = 0;
+    std::vector<double> cdf;
+    for (size_t t = 0; t < m.triangle_count(); ++t) cdf.push_back(total += shape.tri_area(t));
+    PCG32 rng(seed);
+    double s = 0, s2 = 0;
+    for (int i = 0; i < N; ++i) {
+        double ut = rng.next_double() * total;
+        size_t t = std::min(cdf.size() - 1, size_t(std::lower_bound(cdf.begin(), cdf.end(), ut) - cdf.begin()));
+        Vec2 b = square_to_uniform_triangle({rng.next_float(), rng.next_float()});
+        Vec3 y = shape.vertex(t, 0) * b.x + shape.vertex(t, 1) * b.y + shape.vertex(t, 2) * (1 - b.x - b.y);
+        Vec3 d = y - p;
+        double d2 = length_squared(d);
+        Vec3 w = d / std::sqrt(float(d2));
+        double f = light.pdf(LightSampleContext{p, Vec3()}, w, LightHit{y, shape.normal(t), uint32_t(t)}) *
+                   absdot(shape.normal(t), w) / d2 * total;
+        s += f;
+        s2 += f * f;
+    }
+    return mean_std(s, s2, N);
+}
+
+}  // namespace
+
+// --------------------------------------------------------------------------------------
+// Delta lights
+
+TEST(PointLight, InverseSquareAndPower) {
+    auto l = make_light({{"type", "point"}, {"position", {0, 2, 0}}, {"intensity", {4, 8, 12}}});
+    LightSample ls;
+    ASSERT_TRUE(l->sample({Vec3(0, 0, 0), Vec3(0, 1, 0)}, {0.3f, 0.7f}, ls));
+    EXPECT_NEAR(ls.wi.y, 1.f, 1e-6f);
+    EXPECT_FLOAT_EQ(ls.dist, 2.f);
+    EXPECT_FLOAT_EQ(ls.L.r, 1.f);
+    EXPECT_FLOAT_EQ(ls.L.b, 3.f);
+    EXPECT_EQ(ls.pdf, 1.f);
+    EXPECT_TRUE(ls.delta);
+    EXPECT_TRUE(l->is_delta());
+    EXPECT_EQ(l->pdf({}, Vec3(0, 1, 0), {}), 0.f);
+    EXPECT_NEAR(l->power(), 4 * Pi * 8, 1e-3);
+    // At the light's own position: no sample, no NaN.
+    EXPECT_FALSE(l->sample({Vec3(0, 2, 0), Vec3()}, {0.5f, 0.5f}, ls));
+}
+
+TEST(SpotLight, FalloffAndPower) {
+    json j = {{"type", "spot"}, {"position", {0, 0, 0}}, {"target", {0, 0, 5}}, {"intensity", 2},
+              {"cutoff_angle", 30}, {"beam_width", 20}};
+    auto l = make_light(j);
+    auto at = [&](float deg, float d) {
+        Vec3 p = Vec3(std::sin(radians(deg)), 0, std::cos(radians(deg))) * d;
+        LightSample ls;
+        bool ok = l->sample({p, Vec3()}, {0.5f, 0.5f}, ls);
+        return ok ? ls.L.r : 0.f;
+    };
+    EXPECT_FLOAT_EQ(at(0, 2), 2.f / 4.f);    // on the axis: I / d^2
+    EXPECT_FLOAT_EQ(at(19, 1), 2.f);         // inside the beam
+    EXPECT_NEAR(at(25, 1), 2.f * 0.5f, 1e-5f);  // half way through the linear ramp
+    EXPECT_EQ(at(30.5f, 1), 0.f);            // beyond the cutoff
+    EXPECT_EQ(at(120, 1), 0.f);
+    // Power = ∫ I falloff dω: quadrature in theta.
+    double q = 0;
+    const int n = 200000;
+    for (int i = 0; i < n; ++i) {
+        double th = (i + 0.5) * M_PI / n;
+        double f = th <= radians(20) ? 1 : (th >= radians(30) ? 0 : (radians(30) - th) / radians(10));
+        q += f * std::sin(th) * (M_PI / n);
+    }
+    EXPECT_NEAR(l->power(), 2 * 2 * M_PI * q, 1e-4 * l->power());
+    // Defaults: beam = 3/4 cutoff = 15 deg.
+    auto d = make_light({{"type", "spot"}, {"direction", {0, 0, 1}}, {"cutoff_angle", 20}});
+    LightSample ls;
+    ASSERT_TRUE(d->sample({Vec3(std::sin(radians(14.9f)), 0, std::cos(radians(14.9f))), Vec3()}, {0, 0}, ls));
+    EXPECT_FLOAT_EQ(ls.L.r, 1.f);
+    ASSERT_TRUE(d->sample({Vec3(std::sin(radians(17.5f)), 0, std::cos(radians(17.5f))), Vec3()}, {0, 0}, ls));
+    EXPECT_NEAR(ls.L.r, 0.5f, 1e-4f);
+    EXPECT_EQ(light_error({{"type", "spot"}, {"direction", {0, 0, 1}}, {"target", {0, 0, 1}}}),
+              "lights[0].target: give either 'direction' or 'target', not both");
+    EXPECT_EQ(light_error({{"type", "spot"}, {"cutoff_angle", 10}, {"beam_width", 12}}),
+              "lights[0].beam_width: must be in [0, cutoff_angle = 10] degrees");
+}
+
+TEST(DirectionalLight, IrradianceAndPower) {
+    auto l = make_light({{"type", "directional"}, {"direction", {0, -2, 0}}, {"irradiance", 3}});
+    LightSample ls;
+    ASSERT_TRUE(l->sample({Vec3(5, 1, 2), Vec3(0, 1, 0)}, {0.1f, 0.9f}, ls));
+    EXPECT_NEAR(ls.wi.y, 1.f, 1e-6f);
+    EXPECT_EQ(ls.dist, Infinity);
+    EXPECT_FLOAT_EQ(ls.L.g, 3.f);
+    EXPECT_TRUE(ls.delta && l->is_delta());
+    l->preprocess(Vec3(0, 0, 0), 2.f);
+    EXPECT_NEAR(l->power(), Pi * 4 * 3, 1e-4);
+    EXPECT_EQ(light_error({{"type", "directional"}, {"direction", {0, 0, 0}}}),
+              "lights[0].direction: must be a non-zero vector");
+    EXPECT_EQ(light_error({{"type", "directional"}, {"irradiance", 1}, {"irradiance_typo", 1}}),
+              "lights[0].irradiance_typo: unknown parameter 'irradiance_typo' for light 'directional'");
+}
+
+TEST(ConstantEnvLight, UniformSphere) {
+    auto l = make_light({{"type", "constant"}, {"radiance", {1, 2, 3}}});
+    EXPECT_TRUE(l->is_infinite());
+    PCG32 rng(5);
+    for (int i = 0; i < 100; ++i) {
+        LightSample ls;
+        ASSERT_TRUE(l->sample({Vec3(), Vec3()}, {rng.next_float(), rng.next_float()}, ls));
+        EXPECT_NEAR(length(ls.wi), 1.f, 1e-5f);
+        EXPECT_FLOAT_EQ(ls.pdf, l->pdf({}, ls.wi, {}));
+        EXPECT_FLOAT_EQ(ls.pdf, 1.f / (4 * Pi));
+        EXPECT_FLOAT_EQ(ls.L.g, 2.f);
+    }
+    l->preprocess(Vec3(), 1.f);
+    EXPECT_NEAR(l->power(), 4 * Pi * Pi * 2, 1e-3);
+}
+
+// --------------------------------------------------------------------------------------
+// Area lights
+
+TEST(AreaLight, SphericalTriangleIsUniform) {
+    // Fractions of samples in the 4 midpoint sub-triangles = their share of the solid angle.
+    auto v = test_triangle();
+    Vec3 p(0.1f, 0.f, 0.f);
+    Vec3 m01 = (v[0] + v[1]) * 0.5f, m12 = (v[1] + v[2]) * 0.5f, m20 = (v[2] + v[0]) * 0.5f;
+    std::array<std::array<Vec3, 3>, 4> subs = {{{v[0], m01, m20}, {m01, v[1], m12}, {m20, m12, v[2]}, {m01, m12, m20}}};
+    double omega = sphtri::solid_angle(p, v[0], v[1], v[2]);
+    double sum_sub = 0;
+    for (auto &s : subs) sum_sub += sphtri::solid_angle(p, s[0], s[1], s[2]);
+    EXPECT_NEAR(sum_sub, omega, 1e-6 * omega);  // midpoints are rounded to float
+    const int N = 200000;
+    std::array<int, 4> counts{};
+    PCG32 rng(11);
+    for (int i = 0; i < N; ++i) {
+        double b[3];
+        ASSERT_TRUE(sphtri::sample(p, v[0], v[1], v[2], {rng.next_float(), rng.next_float()}, b));
+        int k = b[0] > 0.5 ? 0 : b[1] > 0.5 ? 1 : b[2] > 0.5 ? 2 : 3;
+        counts[k]++;
+    }
+    for (int k = 0; k < 4; ++k) {
+        double pk = sphtri::solid_angle(p, subs[k][0], subs[k][1], subs[k][2]) / omega;
+        EXPECT_NEAR(counts[k], N * pk, 5 * std::sqrt(N * pk * (1 - pk))) << "sub-triangle " << k;
+    }
+}
+
+TEST(AreaLight, TriangleSamplePdfMatchesPdf) {
+    TestMeshShape shape(make_mesh(test_triangle(), {0, 1, 2}));
+    for (const char *mode : {"solid_angle", "area"}) {
+        auto l = make_light({{"type", "area"}, {"radiance", 2}, {"sampling", mode}});
+        l->set_shape(&shape);
+        PCG32 rng(3);
+        for (auto &rp : ref_points(shape)) {
+            for (int i = 0; i < 2000; ++i) {
+                LightSample ls;
+                LightSampleContext ctx{rp.p, rp.n};
+                if (!l->sample(ctx, {rng.next_float(), rng.next_float()}, ls)) continue;
+                ASSERT_FALSE(ls.delta);
+                LightHit hit{rp.p + ls.wi * ls.dist, shape.normal(0), 0};
+                float pdf = l->pdf(ctx, ls.wi, hit);
+                ASSERT_NEAR(ls.pdf, pdf, 2e-4f * pdf) << mode << " " << rp.name;
+                // The sampled point lies on the triangle's plane.
+                EXPECT_NEAR(dot(hit.p - shape.vertex(0, 0), shape.normal(0)), 0.f, 1e-4f * (1 + ls.dist));
+                EXPECT_FLOAT_EQ(ls.L.r, l->eval(hit, -ls.wi).r);
+            }
+        }
+    }
+}
+
+TEST(AreaLight, SolidAngleModeIsUniformNearAndAreaFar) {
+    TestMeshShape shape(make_mesh(test_triangle(), {0, 1, 2}));
+    auto l = make_light({{"type", "area"}, {"sampling", "solid_angle"}});
+    l->set_shape(&shape);
+    const TriangleMesh &m = *shape.mesh();
+    // Near: pdf = 1 / Omega for every direction.
+    Vec3 p(0.1f, 0, 0);
+    double omega = sphtri::solid_angle(p, m.positions[0], m.positions[1], m.positions[2]);
+    ASSERT_GT(omega, 3e-4);
+    PCG32 rng(8);
+    for (int i = 0; i < 100; ++i) {
+        LightSample ls;
+        ASSERT_TRUE(l->sample({p, Vec3()}, {rng.next_float(), rng.next_float()}, ls));
+        EXPECT_NEAR(ls.pdf, 1.0 / omega, 1e-5 / omega);
+    }
+    // Far: Omega < 3e-4 sr, so area sampling: pdf = d^2 / (A |cos|).
+    Vec3 q(30.f, -20.f, -80.f);
+    ASSERT_LT(sphtri::solid_angle(q, m.positions[0], m.positions[1], m.positions[2]), 3e-4);
+    for (int i = 0; i < 100; ++i) {
+        LightSample ls;
+        ASSERT_TRUE(l->sample({q, Vec3()}, {rng.next_float(), rng.next_float()}, ls));
+        double expect = double(ls.dist) * ls.dist / (shape.tri_area(0) * absdot(shape.normal(0), ls.wi));
+        EXPECT_NEAR(ls.pdf, expect, 1e-4 * expect);
+    }
+}
+
+TEST(AreaLight, PdfIntegratesToOne) {
+    // One triangle and a two-triangle rectangle; ∫ pdf dω = 1 over the light's solid angle.
+    TestMeshShape tri(make_mesh(test_triangle(), {0, 1, 2}));
+    // Rectangle [-1,1] x [-0.5,0.5] at z = 2 facing down (-z), two triangles.
+    TestMeshShape rect(make_mesh({{-1, -0.5f, 2}, {1, -0.5f, 2}, {1, 0.5f, 2}, {-1, 0.5f, 2}}, {0, 2, 1, 0, 3, 2}));
+    ASSERT_LT(rect.normal(0).z, 0.f);
+    for (const TestMeshShape *shape : {&tri, &rect}) {
+        for (const char *mode : {"solid_angle", "area"}) {
+            auto l = make_light({{"type", "area"}, {"sampling", mode}});
+            l->set_shape(shape);
+            uint64_t seed = 100;
+            for (auto &rp : ref_points(*shape)) {
+                double hit_fraction;
+                MeanStd r = integrate_pdf_cone(*l, *shape, rp.p, 40000, seed++, hit_fraction);
+                // Directions: meaningful where a fair share of the cone hits the light (the
+                // edge-on sliver of "grazing_far" is covered by the area form below).
+                if (hit_fraction > 0.005)
+                    EXPECT_NEAR(r.mean, 1.0, 5 * r.stderr_ + 1e-4) << mode << " " << rp.name << " " << shape->primitive_count();
+                else
+                    EXPECT_STREQ(rp.name, "grazing_far") << hit_fraction;
+                r = integrate_pdf_area(*l, *shape, rp.p, 40000, seed++);
+                EXPECT_NEAR(r.mean, 1.0, 5 * r.stderr_ + 1e-4) << mode << " " << rp.name << " " << shape->primitive_count();
+            }
+        }
+    }
+}
+
+TEST(AreaLight, IrradianceMatchesLambert) {
+    auto v = test_triangle();
+    TestMeshShape tri(make_mesh(v, {0, 1, 2}));
+    std::vector<Vec3> rv = {{-1, -0.5f, 2}, {1, -0.5f, 2}, {1, 0.5f, 2}, {-1, 0.5f, 2}};
+    TestMeshShape rect(make_mesh(rv, {0, 2, 1, 0, 3, 2}));
+    struct Case {
+        const TestMeshShape *shape;
+        std::vector<Vec3> poly;
+    };
+    for (const Case &c : {Case{&tri, v}, Case{&rect, rv}}) {
+        for (const char *mode : {"solid_angle", "area"}) {
+            auto l = make_light({{"type", "area"}, {"radiance", 1.5}, {"sampling", mode}});
+            l->set_shape(c.shape);
+            uint64_t seed = 7;
+            for (auto &rp : ref_points(*c.shape)) {
+                double ref = lambert_irradiance(rp.p, rp.n, c.poly, 1.5);
+                MeanStd e = estimate_irradiance(*l, rp.p, rp.n, 20000, seed++);
+                ASSERT_TRUE(std::isfinite(e.mean) && std::isfinite(ref));
+                // 5 standard errors, with a float-precision floor for near-zero-variance cases.
+                EXPECT_NEAR(e.mean, ref, 5 * e.stderr_ + 1e-4 * ref) << mode << " " << rp.name;
+            }
+        }
+    }
+}
+
+TEST(AreaLight, OneSidedTwoSidedAndPower) {
+    TestMeshShape rect(make_mesh({{-1, -0.5f, 2}, {1, -0.5f, 2}, {1, 0.5f, 2}, {-1, 0.5f, 2}}, {0, 2, 1, 0, 3, 2}));
+    auto one = make_light({{"type", "area"}, {"radiance", {1, 2, 3}}});
+    auto two = make_light({{"type", "area"}, {"radiance", {1, 2, 3}}, {"two_sided", true}});
+    one->set_shape(&rect);
+    two->set_shape(&rect);
+    LightHit hit{Vec3(0, 0, 2), Vec3(0, 0, -1), 0};
+    EXPECT_FLOAT_EQ(one->eval(hit, Vec3(0, 0, -1)).g, 2.f);
+    EXPECT_EQ(one->eval(hit, Vec3(0, 0, 1)).g, 0.f);
+    EXPECT_FLOAT_EQ(two->eval(hit, Vec3(0, 0, 1)).g, 2.f);
+    EXPECT_NEAR(one->power(), Pi * 2 * 2, 1e-4);
+    EXPECT_NEAR(two->power(), 2 * Pi * 2 * 2, 1e-4);
+    // From above (behind the emitting side) a one-sided light gives nothing; two-sided does.
+    LightSample ls;
+    PCG32 rng(1);
+    for (int i = 0; i < 100; ++i) {
+        Vec2 u(rng.next_float(), rng.next_float());
+        EXPECT_FALSE(one->sample({Vec3(0.2f, 0, 3), Vec3(0, 0, -1)}, u, ls));
+        ASSERT_TRUE(two->sample({Vec3(0.2f, 0, 3), Vec3(0, 0, -1)}, u, ls));
+        EXPECT_FLOAT_EQ(ls.L.b, 3.f);
+    }
+    // A point in the light's plane: no NaN, either no sample or a finite one.
+    for (const char *mode : {"solid_angle", "area"}) {
+        auto l = make_light({{"type", "area"}, {"sampling", mode}, {"two_sided", true}});
+        l->set_shape(&rect);
+        for (int i = 0; i < 100; ++i) {
+            Vec2 u(rng.next_float(), rng.next_float());
+            for (Vec3 p : {Vec3(3, 0, 2), Vec3(0.3f, 0.1f, 2)}) {
+                if (l->sample({p, Vec3()}, u, ls)) {
+                    EXPECT_TRUE(std::isfinite(ls.pdf) && ls.L.is_finite());
+                }
+            }
+        }
+    }
+    // Degenerate (zero-area) triangles are never sampled and have pdf 0.
+    TestMeshShape degen(make_mesh({{-1, -1, 2}, {1, -1, 2}, {0, 1, 2}, {5, 5, 2}}, {0, 2, 1, 3, 3, 3}));
+    auto l = make_light({{"type", "area"}, {"two_sided", true}});
+    l->set_shape(&degen);
+    EXPECT_EQ(l->pdf({Vec3(0, 0, 0), Vec3()}, Vec3(0, 0, 1), LightHit{Vec3(5, 5, 2), Vec3(0, 0, 1), 1}), 0.f);
+    for (int i = 0; i < 100; ++i) {
+        ASSERT_TRUE(l->sample({Vec3(0, 0, 0), Vec3()}, {rng.next_float(), rng.next_float()}, ls));
+        EXPECT_TRUE(std::isfinite(ls.pdf));
+    }
+    EXPECT_EQ(light_error({{"type", "area"}, {"sampling", "cosine"}}),
+              "lights[0].sampling: expected \"solid_angle\" or \"area\", got \"cosine\"");
+}
+
+TEST(AreaLight, SphereIrradianceAndPdf) {
+    // A sphere of radius 1 at distance 3 seen from a point facing it: E = pi L (R/d)^2.
+    TestSphereShape sphere(Vec3(0, 0, 3), 1.f);
+    auto l = make_light({{"type", "area"}, {"radiance", 2}});  // solid_angle requested; sphere uses area
+    l->set_shape(&sphere);
+    MeanStd e = estimate_irradiance(*l, Vec3(0, 0, 0), Vec3(0, 0, 1), 40000, 21);
+    EXPECT_NEAR(e.mean, Pi * 2 / 9, 5 * e.stderr_);
+    PCG32 rng(4);
+    for (int i = 0; i < 1000; ++i) {
+        LightSample ls;
+        LightSampleContext ctx{Vec3(0.3f, 0.1f, -0.5f), Vec3()};
+        if (!l->sample(ctx, {rng.next_float(), rng.next_float()}, ls)) continue;
+        Vec3 hp = ctx.p + ls.wi * ls.dist;
+        float pdf = l->pdf(ctx, ls.wi, LightHit{hp, normalize(hp - Vec3(0, 0, 3)), 0});
+        ASSERT_NEAR(ls.pdf, pdf, 1e-3f * pdf);
+    }
+    EXPECT_NEAR(l->power(), Pi * 4 * Pi * 2, 1e-3);
+}
+
+// --------------------------------------------------------------------------------------
+// Environment maps
+
+namespace {
+
+/// Smooth background with a hot spot (a procedural HDR sky), w x h.
+Image hotspot_map(int w, int h, float hu, float hv) {
+    Image img(w, h, 3);
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x) {
+            float u = (x + 0.5f) / w, v = (y + 0.5f) / h;
+            float du = std::min(std::abs(u - hu), 1 - std::abs(u - hu)) * w, dv = (v - hv) * h;
+            float spot = 30.f * std::exp(-(du * du + dv * dv) / (2 * 1.5f * 1.5f));
+            float sky = 0.3f + 0.2f * std::sin(2 * Pi * u) * v;
+            img.set_rgb(x, y, Spectrum(sky + spot, sky + 0.5f * spot, sky));
+        }
+    return img;
+}
+
+/// Regularised upper incomplete gamma Q(a, x) (Numerical Recipes gammq): chi-square p-values.
+double gamma_q(double a, double x) {
+    if (x <= 0) return 1;
+    double gln = std::lgamma(a);
+    if (x < a + 1) {
+        double ap = a, sum = 1 / a, del = sum;
+        for (int n = 0; n < 1000; ++n) {
+            ap += 1;
+            del *= x / ap;
+            sum += del;
+            if (std::abs(del) < std::abs(sum) * 1e-15) break;
+        }
+        return 1 - sum * std::exp(-x + a * std::log(x) - gln);
+    }
+    double b = x + 1 - a, c = 1 / 1e-300, d = 1 / b, h = d;
+    for (int i = 1; i < 1000; ++i) {
+        double an = -i * (i - a);
+        b += 2;
+        d = an * d + b;
+        if (std::abs(d) < 1e-300) d = 1e-300;
+        c = b + an / c;
+        if (std::abs(c) < 1e-300) c = 1e-300;
+        d = 1 / d;
+        double del = d * c;
+        h *= del;
+        if (std::abs(del - 1) < 1e-15) break;
+    }
+    return std::exp(-x + a * std::log(x) - gln) * h;
+}
+
+/// Per-process scratch directory, removed at exit.
+std::string tmp_dir() {
+    struct Dir {
+        std::string path;
+        ~Dir() {
+            std::error_code ec;
+            fs::remove_all(path, ec);
+        }
+    };
+    static Dir dir{[] {
+        fs::path p = fs::temp_directory_path() / ("meso_test_lights_" + std::to_string(::getpid()));
+        fs::create_directories(p);
+        return p.string();
+    }()};
+    return dir.path;
+}
+
+void write_float_image(const std::string &path, const Image &img) {
+    auto out = OIIO::ImageOutput::create(path);
+    ASSERT_TRUE(out) << OIIO::geterror();
+    OIIO::ImageSpec spec(img.width, img.height, img.channels, OIIO::TypeDesc::FLOAT);
+    ASSERT_TRUE(out->open(path, spec));
+    ASSERT_TRUE(out->write_image(OIIO::TypeDesc::FLOAT, img.data.data()));
+    out->close();
+}
+
+}  // namespace
+
+TEST(EnvMap, MappingConvention) {
+    // Documented landmarks of the Mitsuba lat-long mapping (+y up).
+    auto near = [](Vec3 a, Vec3 b) { return length(a - b) < 1e-5f; };
+    EXPECT_TRUE(near(EnvMapLight::uv_to_direction({0.5f, 0.5f}), Vec3(0, 0, 1)));
+    EXPECT_TRUE(near(EnvMapLight::uv_to_direction({0.25f, 0.5f}), Vec3(1, 0, 0)));
+    EXPECT_TRUE(near(EnvMapLight::uv_to_direction({0.75f, 0.5f}), Vec3(-1, 0, 0)));
+    EXPECT_TRUE(near(EnvMapLight::uv_to_direction({0.f, 0.5f}), Vec3(0, 0, -1)));
+    EXPECT_TRUE(near(EnvMapLight::uv_to_direction({0.3f, 0.f}), Vec3(0, 1, 0)));
+    EXPECT_TRUE(near(EnvMapLight::uv_to_direction({0.3f, 1.f}), Vec3(0, -1, 0)));
+    PCG32 rng(2);
+    for (int i = 0; i < 1000; ++i) {
+        Vec2 uv(rng.next_float(), 0.01f + 0.98f * rng.next_float());
+        Vec2 back = EnvMapLight::direction_to_uv(EnvMapLight::uv_to_direction(uv));
+        EXPECT_NEAR(back.x, uv.x, 1e-5f);
+        EXPECT_NEAR(back.y, uv.y, 1e-5f);
+    }
+}
+
+TEST(EnvMap, BrightTexelLightsPredictedDirection) {
+    const int W = 64, H = 32, X = 40, Y = 10;
+    Image img(W, H, 3);
+    img.set_rgb(X, Y, Spectrum(100.f, 50.f, 25.f));
+    // Predicted local direction of the texel centre; the map is rotated 90 deg about +y.
+    Vec3 local = EnvMapLight::uv_to_direction({(X + 0.5f) / W, (Y + 0.5f) / H});
+    Transform rot = Transform::rotate(Vec3(0, 1, 0), 90.f);
+    Vec3 world = normalize(rot.apply_vector(local));
+    // Rotation about +y by +90 deg maps +x to -z (right-handed): check the convention used.
+    EXPECT_NEAR(rot.apply_vector(Vec3(1, 0, 0)).z, -1.f, 1e-5f);
+    EnvMapLight env(img, 2.f, rot, "bright");
+    // The bilinear radiance at the texel centre is the texel value times scale.
+    Spectrum L = env.radiance(world);
+    EXPECT_NEAR(L.r, 200.f, 1e-2f);
+    EXPECT_NEAR(L.b, 50.f, 1e-2f);
+    // Every sample lands within one texel of it; the mean direction is the texel centre.
+    PCG32 rng(9);
+    Vec3 mean(0, 0, 0);
+    int centre = 0;
+    const int N = 20000;
+    float texel_angle = Pi / H;
+    for (int i = 0; i < N; ++i) {
+        LightSample ls;
+        ASSERT_TRUE(env.sample({Vec3(), Vec3()}, {rng.next_float(), rng.next_float()}, ls));
+        Vec2 uv = EnvMapLight::direction_to_uv(normalize(rot.apply_inverse_vector(ls.wi)));
+        int x = int(uv.x * W), y = int(uv.y * H);
+        ASSERT_LE(std::abs(x - X), 1);
+        ASSERT_LE(std::abs(y - Y), 1);
+        centre += (x == X && y == Y);
+        mean += ls.wi;
+    }
+    mean = normalize(mean);
+    // Statistical spread ~0.01 texel; the rest is the (small) asymmetry of sin(theta) weights.
+    EXPECT_LT(std::acos(std::min(1.f, dot(mean, world))), 0.1f * texel_angle);
+    // Cell weights: (1/8, 3/4, 1/8) across, the same times ∫ sin(theta) of each row down.
+    auto row = [&](int y) { return std::cos(M_PI * y / H) - std::cos(M_PI * (y + 1) / H); };
+    double p_centre = 0.75 * 0.75 * row(Y) / (0.125 * row(Y - 1) + 0.75 * row(Y) + 0.125 * row(Y + 1));
+    EXPECT_NEAR(centre / double(N), p_centre, 5 * std::sqrt(p_centre * (1 - p_centre) / N));
+}
+
+TEST(EnvMap, PdfIntegratesToOne) {
+    Image img = hotspot_map(32, 16, 0.3f, 0.35f);
+    // (a) quadrature over the sphere in the map's own frame (pdf·sin(theta) is constant
+    // per cell, so the midpoint rule on a refined grid is exact up to rounding).
+    {
+        EnvMapLight env(img, 1.f, Transform(), "q");
+        const int nt = 16 * 16, np = 32 * 16;
+        double sum = 0;
+        for (int i = 0; i < nt; ++i)
+            for (int j = 0; j < np; ++j) {
+                Vec2 uv((j + 0.5f) / np, (i + 0.5f) / nt);
+                Vec3 d = EnvMapLight::uv_to_direction(uv);
+                double sin_t = std::sin(M_PI * uv.y);
+                sum += env.pdf({}, d, {}) * sin_t * (M_PI / nt) * (2 * M_PI / np);
+            }
+        EXPECT_NEAR(sum, 1.0, 1e-4);
+    }
+    // (b) Monte Carlo with uniform sphere directions on a map rotated about an oblique axis.
+    {
+        EnvMapLight env(img, 1.f, Transform::rotate(Vec3(1, 2, 0.5f), 37.f), "mc");
+        PCG32 rng(13);
+        double s = 0, s2 = 0;
+        const int N = 400000;
+        for (int i = 0; i < N; ++i) {
+            Vec3 w = square_to_uniform_sphere({rng.next_float(), rng.next_float()});
+            double f = env.pdf({}, w, {}) * 4 * M_PI;
+            s += f;
+            s2 += f * f;
+        }
+        MeanStd r = mean_std(s, s2, N);
+        EXPECT_NEAR(r.mean, 1.0, 5 * r.stderr_);
+    }
+}
+
+TEST(EnvMap, SamplingMatchesPdfChiSquare) {
+    Image img = hotspot_map(32, 16, 0.3f, 0.35f);
+    Transform rot = Transform::rotate(Vec3(1, 2, 0.5f), 37.f);
+    EnvMapLight env(img, 1.f, rot, "chi2");
+    // Sample; check that sample() reports pdf(wi) and eval; histogram in world (z, phi) bins.
+    const int NZ = 12, NP = 24, N = 300000;
+    std::vector<double> obs(NZ * NP, 0.0), expct(NZ * NP, 0.0);
+    PCG32 rng(17);
+    for (int i = 0; i < N; ++i) {
+        LightSample ls;
+        ASSERT_TRUE(env.sample({Vec3(), Vec3()}, {rng.next_float(), rng.next_float()}, ls));
+        if (i < 20000) {
+            ASSERT_EQ(ls.pdf, env.pdf({}, ls.wi, {}));
+            ASSERT_EQ(ls.L.r, env.eval({}, -ls.wi).r);
+            ASSERT_NEAR(length(ls.wi), 1.f, 1e-5f);
+            ASSERT_EQ(ls.dist, Infinity);
+        }
+        float z = clamp(ls.wi.z, -1.f, 1.f);
+        float phi = std::atan2(ls.wi.y, ls.wi.x);
+        if (phi < 0) phi += 2 * Pi;
+        int iz = std::min(NZ - 1, int((z + 1) * 0.5f * NZ)), ip = std::min(NP - 1, int(phi / (2 * Pi) * NP));
+        obs[iz * NP + ip] += 1;
+    }
+    // Expected counts: integrate pdf over each bin (uniform in z and phi: dω = dz dphi) on a
+    // 24 x 24 sub-grid.
+    const int S = 24;
+    double total = 0;
+    for (int iz = 0; iz < NZ; ++iz)
+        for (int ip = 0; ip < NP; ++ip) {
+            double acc = 0;
+            for (int a = 0; a < S; ++a)
+                for (int b = 0; b < S; ++b) {
+                    double z = -1 + 2.0 * (iz + (a + 0.5) / S) / NZ;
+                    double phi = 2 * M_PI * (ip + (b + 0.5) / S) / NP;
+                    double r = std::sqrt(std::max(0.0, 1 - z * z));
+                    acc += env.pdf({}, Vec3(float(r * std::cos(phi)), float(r * std::sin(phi)), float(z)), {});
+                }
+            double bin_area = (2.0 / NZ) * (2 * M_PI / NP);
+            expct[iz * NP + ip] = acc / (S * S) * bin_area * N;
+            total += expct[iz * NP + ip];
+        }
+    ASSERT_NEAR(total / N, 1.0, 2e-3);  // quadrature sanity
+    // Chi-square over bins with expected >= 5 (the rest pooled), significance 1e-3.
+    double chi2 = 0, pool_o = 0, pool_e = 0;
+    int dof = -1;
+    for (size_t k = 0; k < obs.size(); ++k) {
+        if (expct[k] < 5) {
+            pool_o += obs[k];
+            pool_e += expct[k];
+            continue;
+        }
+        chi2 += sqr(obs[k] - expct[k]) / expct[k];
+        ++dof;
+        EXPECT_NEAR(obs[k], expct[k], 5 * std::sqrt(expct[k]) + 5) << "bin " << k;
+    }
+    if (pool_e > 0) {
+        chi2 += sqr(pool_o - pool_e) / pool_e;
+        ++dof;
+    }
+    double pval = gamma_q(dof / 2.0, chi2 / 2.0);
+    EXPECT_GT(pval, 1e-3) << "chi2 = " << chi2 << " dof = " << dof;
+}
+
+TEST(EnvMap, PowerAndSceneFileErrors) {
+    // Constant map: ∫ L dω = 4 pi L exactly; power = pi r^2 · 4 pi L.
+    Image img(8, 4, 3);
+    for (auto &x : img.data) x = 0.5f;
+    std::string dir = tmp_dir();
+    write_float_image(dir + "/const.exr", img);
+    auto ctx = std::make_shared<LoadContext>();
+    ctx->file = "scene.json";
+    ctx->base_dir = dir;
+    json j = {{"type", "envmap"}, {"filename", "const.exr"}, {"scale", 2},
+              {"to_world", {{"rotate", {{"axis", {0, 1, 0}}, {"angle", 30}}}}}};
+    auto l = make_light(j, ctx);
+    ASSERT_TRUE(l->is_infinite());
+    l->preprocess(Vec3(), 3.f);
+    EXPECT_NEAR(l->power(), Pi * 9 * 4 * Pi * 1.0, 1e-3 * l->power());
+    EXPECT_NE(l->to_string().find("MB"), std::string::npos);
+    EXPECT_NEAR(l->eval({}, Vec3(0.3f, 0.4f, 0.866f)).g, 1.f, 1e-6f);
+
+    // Missing file, malformed EXR, scale in to_world: errors name the file and the key.
+    EXPECT_EQ(light_error({{"type", "envmap"}, {"filename", "nope.exr"}}, ctx),
+              "scene.json: lights[0].filename: file not found: '" + dir + "/nope.exr'");
+    {
+        std::ofstream f(dir + "/broken.exr");
+        f << "this is not an OpenEXR file";
+    }
+    std::string msg = light_error({{"type", "envmap"}, {"filename", "broken.exr"}}, ctx);
+    EXPECT_EQ(msg.rfind("scene.json: lights[0].filename: ", 0), 0u) << msg;
+    EXPECT_NE(msg.find("broken.exr"), std::string::npos) << msg;
+    msg = light_error({{"type", "envmap"}, {"filename", "const.exr"}, {"to_world", {{"scale", 2}}}}, ctx);
+    EXPECT_EQ(msg, "scene.json: lights[0].to_world: to_world of an environment map must be a rotation (no scale or shear)");
+    // Non-finite texels are rejected with the file named.
+    img.at(3, 2, 1) = std::nanf("");
+    write_float_image(dir + "/nan.exr", img);
+    msg = light_error({{"type", "envmap"}, {"filename", "nan.exr"}}, ctx);
+    EXPECT_EQ(msg, "scene.json: lights[0].filename: " + dir +
+                       "/nan.exr: environment map has 1 pixel(s) with negative, NaN or infinite values");
+}
