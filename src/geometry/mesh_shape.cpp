@@ -19,21 +19,25 @@ MeshShape::MeshShape(TriangleMesh mesh, std::string name) : m_mesh(std::move(mes
     }
     m_area = float(total);
     m_area_distr = Distribution1D(areas);
+    m_has_normals = !m_mesh.normals.empty();
+    m_has_uvs = !m_mesh.uvs.empty();
+    m_vertices.assign(m_mesh.vertex_count() * Stride, 0.f);
+    for (size_t i = 0; i < m_mesh.vertex_count(); ++i) {
+        float *v = &m_vertices[i * Stride];
+        v[0] = m_mesh.positions[i].x, v[1] = m_mesh.positions[i].y, v[2] = m_mesh.positions[i].z;
+        if (m_has_normals) v[3] = m_mesh.normals[i].x, v[4] = m_mesh.normals[i].y, v[5] = m_mesh.normals[i].z;
+        if (m_has_uvs) v[6] = m_mesh.uvs[i].x, v[7] = m_mesh.uvs[i].y;
+    }
 }
 
 RTCGeometry MeshShape::build_embree(RTCDevice device) const {
     RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-    // Embree reads vertex buffers in 16-byte chunks: its own allocation pads correctly.
-    auto *v = static_cast<float *>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                           3 * sizeof(float), m_mesh.vertex_count()));
-    for (size_t i = 0; i < m_mesh.vertex_count(); ++i) {
-        v[3 * i] = m_mesh.positions[i].x;
-        v[3 * i + 1] = m_mesh.positions[i].y;
-        v[3 * i + 2] = m_mesh.positions[i].z;
-    }
-    auto *idx = static_cast<uint32_t *>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                                3 * sizeof(uint32_t), m_mesh.triangle_count()));
-    std::copy(m_mesh.indices.begin(), m_mesh.indices.end(), idx);
+    // Shared buffers (no copy): Embree reads vertices in 16-byte loads, which stay inside
+    // each 32-byte interleaved record, and the shape outlives the Embree scene.
+    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, m_vertices.data(), 0,
+                               Stride * sizeof(float), m_mesh.vertex_count());
+    rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m_mesh.indices.data(), 0,
+                               3 * sizeof(uint32_t), m_mesh.triangle_count());
     rtcCommitGeometry(geom);
     return geom;
 }
@@ -41,7 +45,8 @@ RTCGeometry MeshShape::build_embree(RTCDevice device) const {
 void MeshShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float bu, float bv,
                                  SurfaceInteraction &si) const {
     const uint32_t i0 = m_mesh.indices[3 * prim], i1 = m_mesh.indices[3 * prim + 1], i2 = m_mesh.indices[3 * prim + 2];
-    const Vec3 &p0 = m_mesh.positions[i0], &p1 = m_mesh.positions[i1], &p2 = m_mesh.positions[i2];
+    const float *v0 = &m_vertices[i0 * Stride], *v1 = &m_vertices[i1 * Stride], *v2 = &m_vertices[i2 * Stride];
+    const Vec3 p0(v0[0], v0[1], v0[2]), p1(v1[0], v1[1], v1[2]), p2(v2[0], v2[1], v2[2]);
     float b0 = 1.f - bu - bv;
     si.t = t;
     si.shape = this;
@@ -54,10 +59,10 @@ void MeshShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float b
     si.wo = -normalize(ray.d);
 
     Vec2 uv0(0, 0), uv1(1, 0), uv2(1, 1);
-    if (!m_mesh.uvs.empty()) {
-        uv0 = m_mesh.uvs[i0];
-        uv1 = m_mesh.uvs[i1];
-        uv2 = m_mesh.uvs[i2];
+    if (m_has_uvs) {
+        uv0 = Vec2(v0[6], v0[7]);
+        uv1 = Vec2(v1[6], v1[7]);
+        uv2 = Vec2(v2[6], v2[7]);
     }
     si.uv = uv0 * b0 + uv1 * bu + uv2 * bv;
 
@@ -67,8 +72,8 @@ void MeshShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float b
     ng = degenerate ? Vec3(0, 0, 0) : ng / ng_len;
 
     Vec3 ns = ng;
-    if (!m_mesh.normals.empty()) {
-        Vec3 n = m_mesh.normals[i0] * b0 + m_mesh.normals[i1] * bu + m_mesh.normals[i2] * bv;
+    if (m_has_normals) {
+        Vec3 n = Vec3(v0[3], v0[4], v0[5]) * b0 + Vec3(v1[3], v1[4], v1[5]) * bu + Vec3(v2[3], v2[4], v2[5]) * bv;
         float l = length(n);
         if (l > 0.f && std::isfinite(l)) ns = n / l;
     }
@@ -117,8 +122,9 @@ PositionSample MeshShape::sample_area(float u_prim, Vec2 u) const {
 }
 
 size_t MeshShape::memory_bytes() const {
-    // Mesh arrays, Embree's copy of positions and indices, and its BVH (~ 64 B / triangle).
-    return m_mesh.memory_bytes() + m_mesh.vertex_count() * 12 + m_mesh.triangle_count() * (12 + 64) +
+    // Mesh arrays, the interleaved vertex buffer shared with Embree, and Embree's BVH
+    // (about 64 B per triangle with high build quality).
+    return m_mesh.memory_bytes() + m_vertices.size() * sizeof(float) + m_mesh.triangle_count() * 64 +
            m_area_distr.size() * 12;
 }
 

@@ -23,6 +23,11 @@ public:
 
 private:
     TriangleMesh m_mesh;
+    /// Interleaved per-vertex position, normal, uv (8 floats), shared with Embree as its
+    /// vertex buffer: one copy, and a hit reads one cache line per vertex.
+    std::vector<float> m_vertices;
+    static constexpr int Stride = 8;
+    bool m_has_normals = false, m_has_uvs = false;
     std::string m_name;
     Distribution1D m_area_distr;
     float m_area = 0.f;

@@ -19,25 +19,32 @@ Distribution1D::Distribution1D(const std::vector<float> &weights) {
         std::fill(m_func.begin(), m_func.end(), 1.f);
         for (size_t i = 0; i <= n; ++i) m_cdf[i] = double(i) / double(n);
         m_func_int = 1.f;
-        return;
+    } else {
+        m_func_int = float(total);
+        for (size_t i = 1; i <= n; ++i) m_cdf[i] /= total;
+        m_cdf[n] = 1.0;
     }
-    m_func_int = float(total);
-    for (size_t i = 1; i <= n; ++i) m_cdf[i] /= total;
-    m_cdf[n] = 1.0;
+    m_guide.resize(n);
+    size_t i = 0;
+    for (size_t k = 0; k < n; ++k) {
+        double t = double(k) / double(n);
+        while (i + 1 < n && m_cdf[i + 1] <= t) ++i;
+        m_guide[k] = uint32_t(i);
+    }
 }
 
-static size_t find_interval(const std::vector<double> &cdf, double u) {
-    // Cell i with cdf[i] <= u < cdf[i+1]; such a cell has positive width. For u at or
-    // beyond the end, step back over trailing zero-width cells.
-    std::ptrdiff_t n = std::ptrdiff_t(cdf.size()) - 1;
-    auto it = std::upper_bound(cdf.begin(), cdf.end(), u);
-    std::ptrdiff_t i = std::clamp<std::ptrdiff_t>((it - cdf.begin()) - 1, 0, n - 1);
-    while (i > 0 && cdf[i + 1] - cdf[i] == 0.0) --i;
-    return size_t(i);
+size_t Distribution1D::find_interval(double u) const {
+    // Cell i with cdf[i] <= u < cdf[i+1] (such a cell has positive width), found by a short
+    // scan from the guide entry. For u at or beyond the end, step back over zero-width cells.
+    const size_t n = m_func.size();
+    size_t i = m_guide[std::min(n - 1, size_t(std::max(0.0, u) * double(n)))];
+    while (i + 1 < n && m_cdf[i + 1] <= u) ++i;
+    while (i > 0 && m_cdf[i + 1] - m_cdf[i] == 0.0) --i;
+    return i;
 }
 
 size_t Distribution1D::sample_discrete(float u, float *pmf_out, float *u_remapped) const {
-    size_t i = find_interval(m_cdf, u);
+    size_t i = find_interval(u);
     double width = m_cdf[i + 1] - m_cdf[i];
     if (pmf_out) *pmf_out = float(width);
     if (u_remapped) *u_remapped = width > 0 ? std::min(OneMinusEpsilon, float((u - m_cdf[i]) / width)) : 0.f;
@@ -45,7 +52,7 @@ size_t Distribution1D::sample_discrete(float u, float *pmf_out, float *u_remappe
 }
 
 float Distribution1D::sample_continuous(float u, float *pdf_out, size_t *offset) const {
-    size_t i = find_interval(m_cdf, u);
+    size_t i = find_interval(u);
     if (offset) *offset = i;
     double width = m_cdf[i + 1] - m_cdf[i];
     double du = width > 0 ? (double(u) - m_cdf[i]) / width : 0.0;

@@ -25,6 +25,10 @@ public:
 private:
     std::vector<float> m_func;  ///< sanitised weights
     std::vector<double> m_cdf;  ///< size()+1 entries, double for exactness on large maps
+    /// Cutpoint guide table (Chen & Asau 1974): m_guide[k] = the cell containing k/n, so an
+    /// inverse-CDF lookup starts next to its answer (expected O(1) instead of a binary search).
+    std::vector<uint32_t> m_guide;
+    size_t find_interval(double u) const;
     float m_func_int = 0.f;     ///< average of func (integral over [0,1])
 };
 

@@ -1,0 +1,143 @@
+// `conductor`: a metal, smooth (perfect mirror) or rough (microfacet), with the exact
+// complex Fresnel reflectance.
+//
+// Model
+//   smooth (alpha < 1e-4):  delta reflection, weight = F(cos θo) · specular_reflectance.
+//   rough:  f(wo, wi) = F(wi·h) D(h) G(wo, wi, h) / (4 cos θo cos θi) · specular_reflectance
+//           (Cook & Torrance 1982; Walter et al. 2007, eq. 20), h = normalize(wo + wi).
+//   D: GGX or Beckmann, anisotropic (alpha_u along the shading frame's s axis);
+//   G: height-correlated Smith (Heitz 2014, eq. 99) — see render/microfacet.h for why.
+//   F: unpolarised conductor Fresnel with complex relative IOR eta + i k
+//      (render/fresnel.h; presets from Tungsten's spectral-to-sRGB tables).
+//   Sampling: visible normals (Heitz 2018 GGX, Heitz & d'Eon 2014 Beckmann) or the full
+//   NDF; pdf(wi) = D_wo(h) / (4 wo·h). Directions below the horizon: sample() fails.
+//   Single scattering only: rough conductors lose energy (albedo < F) at high roughness.
+//
+// Parameters (Mitsuba 3 names)
+//   name                  type      default  range / notes
+//   material              string    "none"   Ag, Al, Au, Cr, Cu, Ni, W, or "none" (F = 1:
+//                                            eta = 0, k = 1, as in Mitsuba)
+//   eta                   spectrum  0        >= 0, real part of the IOR (excludes "material")
+//   k                     spectrum  1        >= 0, imaginary part (excludes "material")
+//   specular_reflectance  texture   1        [0, 1], multiplies F
+//   distribution          string    "ggx"    "ggx" | "beckmann"
+//   alpha                 float     0        [0, 1e3]; < 1e-4 = smooth mirror
+//   alpha_u, alpha_v      float     —        anisotropic alternative to alpha
+//   sample_visible        bool      true     visible-normal sampling
+#include <fmt/format.h>
+#include <optional>
+#include "render/fresnel.h"
+#include "render/material.h"
+#include "render/microfacet.h"
+#include "render/texture.h"
+#include "scene/properties.h"
+#include "scene/registry.h"
+
+namespace meso {
+namespace {
+
+class Conductor final : public Material {
+public:
+    Conductor(std::optional<MicrofacetDistribution> dist, Spectrum eta, Spectrum k,
+              std::shared_ptr<Texture> specular, std::string desc)
+        : m_dist(std::move(dist)), m_eta(eta), m_k(k), m_specular(std::move(specular)), m_desc(std::move(desc)) {}
+
+    uint32_t flags() const override { return m_dist ? BSDF_GlossyReflection : BSDF_DeltaReflection; }
+
+    Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
+        if (!m_dist || !(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+        Vec3 h = normalize(wo + wi);
+        float D = m_dist->D(h);
+        if (D == 0.f) return Spectrum(0.f);
+        float G = m_dist->G(wo, wi, h);
+        float s = float(double(D) * G / (4.0 * wo.z));
+        if (!std::isfinite(s) || s <= 0.f) return Spectrum(0.f);
+        return fresnel_conductor(dot(wi, h), m_eta, m_k) * m_specular->eval(ctx) * s;
+    }
+
+    float pdf(const ShadingContext &, const Vec3 &wo, const Vec3 &wi) const override {
+        if (!m_dist || !(wo.z > 0.f) || !(wi.z > 0.f)) return 0.f;
+        Vec3 h = normalize(wo + wi);
+        float dwh = dot(wo, h);
+        if (!(dwh > 0.f)) return 0.f;
+        float p = float(double(m_dist->pdf(wo, h)) / (4.0 * dwh));
+        return std::isfinite(p) ? p : 0.f;
+    }
+
+    bool sample(const ShadingContext &ctx, const Vec3 &wo, float, Vec2 u, BSDFSample &out) const override {
+        if (!(wo.z > 0.f)) return false;
+        if (!m_dist) {
+            out.wi = reflect_local(wo);
+            out.pdf = 1.f;
+            out.eta = 1.f;
+            out.flags = BSDF_DeltaReflection;
+            out.weight = fresnel_conductor(wo.z, m_eta, m_k) * m_specular->eval(ctx);
+            return true;
+        }
+        float pm;
+        Vec3 m = m_dist->sample(wo, u, &pm);
+        if (!(pm > 0.f)) return false;
+        float dwm = dot(wo, m);
+        if (!(dwm > 0.f)) return false;
+        Vec3 wi = normalize(reflect(wo, m));
+        if (!(wi.z > 0.f)) return false;
+        float G = m_dist->G(wo, wi, m);
+        if (!(G > 0.f)) return false;
+        // weight = f cos / pdf: D cancels. Visible normals: G2 / G1(wo); full NDF:
+        // G2 (wo·m) / (cos θo  m.z).
+        double w = m_dist->sample_visible() ? double(G) / m_dist->G1(wo, m)
+                                            : double(G) * dwm / (double(wo.z) * m.z);
+        out.wi = wi;
+        out.pdf = float(double(pm) / (4.0 * dwm));
+        out.eta = 1.f;
+        out.flags = BSDF_GlossyReflection;
+        out.weight = fresnel_conductor(dot(wi, m), m_eta, m_k) * m_specular->eval(ctx) * float(w);
+        return std::isfinite(out.pdf) && out.pdf > 0.f && out.weight.is_finite();
+    }
+
+    Spectrum albedo_hint(const ShadingContext &ctx) const override {
+        return fresnel_conductor(1.f, m_eta, m_k) * m_specular->eval(ctx);
+    }
+
+    std::string to_string() const override {
+        return fmt::format("conductor[{}, {}]", m_desc, m_dist ? m_dist->to_string() : "smooth");
+    }
+
+private:
+    std::optional<MicrofacetDistribution> m_dist;
+    Spectrum m_eta, m_k;
+    std::shared_ptr<Texture> m_specular;
+    std::string m_desc;
+};
+
+std::shared_ptr<Material> make_conductor(const Properties &p) {
+    auto dist = microfacet_from_properties(p, true, 0.f);
+    Spectrum eta(0.f), k(1.f);
+    std::string desc = "none";
+    if (p.has("material")) {
+        if (p.has("eta")) p.fail("eta", "give either \"material\" or \"eta\"/\"k\", not both");
+        if (p.has("k")) p.fail("k", "give either \"material\" or \"eta\"/\"k\", not both");
+        desc = p.get_string("material");
+        if (desc != "none" && !conductor_preset(desc, eta, k)) {
+            std::string known;
+            for (auto &n : conductor_preset_names()) known += (known.empty() ? "" : ", ") + n;
+            p.fail("material", fmt::format("unknown conductor '{}' (known: {})", desc, known));
+        }
+    } else if (p.has("eta") || p.has("k")) {
+        eta = p.get_spectrum("eta", Spectrum(0.f));
+        k = p.get_spectrum("k", Spectrum(1.f));
+        for (int c = 0; c < 3; ++c) {
+            if (!(eta[c] >= 0.f)) p.fail("eta", "must be >= 0");
+            if (!(k[c] >= 0.f)) p.fail("k", "must be >= 0");
+        }
+        desc = fmt::format("eta=({}, {}, {}), k=({}, {}, {})", eta.r, eta.g, eta.b, k.r, k.g, k.b);
+    }
+    auto spec = p.get_texture("specular_reflectance", Spectrum(1.f));
+    return std::make_shared<Conductor>(dist, eta, k, spec, desc);
+}
+
+MESO_REGISTER_MATERIAL("conductor", "metal: smooth mirror or GGX/Beckmann microfacets, complex Fresnel",
+                       [](const Properties &p) -> std::shared_ptr<Material> { return make_conductor(p); });
+
+}  // namespace
+}  // namespace meso

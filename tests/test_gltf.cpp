@@ -1,0 +1,368 @@
+// glTF loading: meshes (node transforms, mirroring, strips, normalised texcoords,
+// skipped modes), the `gltf` shape plugin, glTF files as scenes, and located errors.
+// Fixtures: scenes/tests/quad.gltf, quad.glb, mixed.gltf (scenes/tests/make_gltf_fixtures.py).
+#include <gtest/gtest.h>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include "core/error.h"
+#include "geometry/shape.h"
+#include "render/light.h"
+#include "scene/gltf.h"
+#include "scene/registry.h"
+#include "scene/scene.h"
+
+using namespace meso;
+using json = nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string fixture(const std::string &name) { return std::string(MESO_SOURCE_DIR) + "/scenes/tests/" + name; }
+
+class GltfTemp {
+public:
+    GltfTemp() {
+        m_path = fs::temp_directory_path() / fmt::format("meso_gltf_{}", std::random_device{}());
+        fs::create_directories(m_path);
+    }
+    ~GltfTemp() {
+        std::error_code ec;
+        fs::remove_all(m_path, ec);
+    }
+    std::string write(const std::string &name, const std::string &text) const {
+        std::ofstream f(m_path / name, std::ios::binary);
+        f << text;
+        return (m_path / name).string();
+    }
+
+private:
+    fs::path m_path;
+};
+
+std::string error_of(const std::function<void()> &f) {
+    try {
+        f();
+    } catch (const MesoError &e) {
+        return e.what();
+    } catch (const std::exception &e) {
+        ADD_FAILURE() << "not a MesoError: " << e.what();
+        return e.what();
+    }
+    ADD_FAILURE() << "expected an error";
+    return "";
+}
+
+Vec3 face_normal(const TriangleMesh &m, size_t tri) {
+    Vec3 a = m.positions[m.indices[3 * tri]], b = m.positions[m.indices[3 * tri + 1]], c = m.positions[m.indices[3 * tri + 2]];
+    return normalize(cross(b - a, c - a));
+}
+
+/// A .gltf with one triangle whose accessors are given (to test malformed files).
+std::string triangle_gltf(const std::string &accessors, const std::string &primitive_extra = "") {
+    // 3 float3 positions (36 bytes) + 3 uint16 indices (6 bytes) = 42 bytes, base64.
+    return R"({"asset": {"version": "2.0"}, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+  "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1)" + primitive_extra + R"(}]}],
+  "buffers": [{"byteLength": 42, "uri": "data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAABAAIA"}],
+  "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
+  "accessors": )" + accessors + "}";
+}
+
+const char *kGoodAccessors = R"([{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3, "min": [0,0,0], "max": [1,1,0]},
+  {"bufferView": 1, "componentType": 5123, "type": "SCALAR", "count": 3}])";
+
+}  // namespace
+
+TEST(Gltf, QuadMesh) {
+    auto meshes = load_gltf_meshes(fixture("quad.gltf"));
+    ASSERT_EQ(meshes.size(), 1u);
+    const TriangleMesh &m = meshes[0];
+    EXPECT_EQ(m.vertex_count(), 4u);
+    EXPECT_EQ(m.triangle_count(), 2u);
+    ASSERT_EQ(m.normals.size(), 4u);
+    ASSERT_EQ(m.uvs.size(), 4u);
+    EXPECT_TRUE(m.tangents.empty());
+    for (size_t i = 0; i < 4; ++i) {
+        EXPECT_FLOAT_EQ(m.positions[i].z, -1.f);  // node translation applied
+        EXPECT_FLOAT_EQ(m.normals[i].z, 1.f);
+    }
+    EXPECT_FLOAT_EQ(m.positions[2].x, 1.f);
+    EXPECT_FLOAT_EQ(m.uvs[1].x, 1.f);
+    EXPECT_FLOAT_EQ(m.uvs[1].y, 1.f);
+    EXPECT_NEAR(m.surface_area(), 4.f, 1e-5f);
+    for (size_t t = 0; t < 2; ++t) EXPECT_NEAR(face_normal(m, t).z, 1.f, 1e-6f);  // counter-clockwise
+    m.validate("quad");
+}
+
+TEST(Gltf, BinaryGlbMatchesGltf) {
+    auto a = load_gltf_meshes(fixture("quad.gltf"));
+    auto b = load_gltf_meshes(fixture("quad.glb"));
+    ASSERT_EQ(a.size(), b.size());
+    ASSERT_EQ(a[0].positions.size(), b[0].positions.size());
+    for (size_t i = 0; i < a[0].positions.size(); ++i) {
+        EXPECT_EQ(a[0].positions[i].x, b[0].positions[i].x);
+        EXPECT_EQ(a[0].positions[i].z, b[0].positions[i].z);
+    }
+    EXPECT_EQ(a[0].indices, b[0].indices);
+}
+
+TEST(Gltf, StripsMirroringInstancingAndSkippedModes) {
+    auto prims = load_gltf_primitives(fixture("mixed.gltf"));
+    // Two node instances x (strip + triangles); the POINTS primitive is skipped.
+    ASSERT_EQ(prims->size(), 4u);
+    const auto &strip = (*prims)[0], &tris = (*prims)[1], &strip2 = (*prims)[2];
+    EXPECT_EQ(strip.name, "mesh 'mixed' primitive 0");
+    EXPECT_EQ(tris.name, "mesh 'mixed' primitive 2");
+    EXPECT_EQ(strip.material, 0);
+    EXPECT_EQ(tris.material, 1);
+    EXPECT_EQ(strip.mesh_index, 0);
+    EXPECT_EQ(strip.mesh.triangle_count(), 2u);
+    EXPECT_EQ(tris.mesh.triangle_count(), 1u);
+    // Mirrored in x: positions flip, and the winding is swapped so the faces still face +z.
+    EXPECT_FLOAT_EQ(strip.mesh.positions[1].x, -1.f);
+    for (size_t t = 0; t < 2; ++t) EXPECT_NEAR(face_normal(strip.mesh, t).z, 1.f, 1e-6f);
+    EXPECT_NEAR(face_normal(tris.mesh, 0).z, 1.f, 1e-6f);
+    // Normalised uint8 texcoords.
+    ASSERT_EQ(tris.mesh.uvs.size(), 3u);
+    EXPECT_FLOAT_EQ(tris.mesh.uvs[1].x, 1.f);
+    EXPECT_FLOAT_EQ(tris.mesh.uvs[2].y, 1.f);
+    // The child node is translated by +3 in y, under its mirrored parent.
+    EXPECT_FLOAT_EQ(strip2.mesh.positions[1].x, -1.f);
+    EXPECT_FLOAT_EQ(strip2.mesh.positions[1].y, 3.f);
+}
+
+TEST(Gltf, ShapePluginInAJsonScene) {
+    GltfTemp tmp;
+    std::string scene = tmp.write("s.json", R"({"camera": {"type": "perspective"}, "shapes": [
+        {"type": "gltf", "filename": ")" + fixture("mixed.gltf") + R"("},
+        {"type": "gltf", "filename": ")" + fixture("quad.glb") + R"(", "to_world": {"translate": [0, 1, 0]}},
+        {"type": "gltf", "filename": ")" + fixture("mixed.gltf") + R"(", "primitive": 1},
+        {"type": "gltf", "filename": ")" + fixture("mixed.gltf") + R"(", "mesh": 0}]})");
+    auto s = load_scene(scene, {});
+    ASSERT_EQ(s->shapes.size(), 4u);
+    ASSERT_TRUE(s->shapes[0]->mesh());
+    EXPECT_EQ(s->shapes[0]->mesh()->triangle_count(), 6u);  // every primitive merged
+    EXPECT_EQ(s->shapes[0]->mesh()->uvs.size(), 0u);        // not every primitive has uvs
+    EXPECT_FLOAT_EQ(s->shapes[1]->mesh()->positions[0].y, 0.f);  // -1 + 1
+    EXPECT_EQ(s->shapes[2]->mesh()->triangle_count(), 1u);
+    EXPECT_EQ(s->shapes[3]->mesh()->triangle_count(), 6u);
+
+    std::string bad = tmp.write("b.json", R"({"camera": {"type": "perspective"}, "shapes": [
+        {"type": "gltf", "filename": ")" + fixture("mixed.gltf") + R"(", "primitive": 4}]})");
+    EXPECT_EQ(error_of([&] { load_scene(bad, {}); }),
+              bad + ": shapes[0].primitive: primitive 4 out of range (" + fixture("mixed.gltf") + " has 4 triangle primitives)");
+    std::string bad2 = tmp.write("b2.json", R"({"camera": {"type": "perspective"}, "shapes": [
+        {"type": "gltf", "filename": ")" + fixture("mixed.gltf") + R"(", "mesh": 3}]})");
+    EXPECT_EQ(error_of([&] { load_scene(bad2, {}); }),
+              bad2 + ": shapes[0].mesh: no triangle primitive of mesh 3 in " + fixture("mixed.gltf"));
+}
+
+TEST(Gltf, FileAsSceneTranslation) {
+    json j = gltf_scene_to_json(fixture("quad.gltf"));
+    const json &cam = j["camera"];
+    EXPECT_EQ(cam["type"], "perspective");
+    EXPECT_EQ(cam["origin"], json::parse("[0.0, 0.0, 5.0]"));
+    EXPECT_EQ(cam["target"], json::parse("[0.0, 0.0, 4.0]"));
+    EXPECT_EQ(cam["fov_axis"], "y");
+    EXPECT_NEAR(cam["fov"].get<double>(), 0.6 * 180.0 / 3.14159265358979, 1e-4);
+    EXPECT_EQ(cam["width"], 720);  // aspectRatio 1.5
+    EXPECT_EQ(cam["height"], 480);
+    ASSERT_EQ(j["shapes"].size(), 1u);
+    EXPECT_EQ(j["shapes"][0]["type"], "gltf");
+    EXPECT_EQ(j["shapes"][0]["filename"], "quad.gltf");
+    EXPECT_EQ(j["shapes"][0]["material"], "red_plastic");
+    const json &mat = j["materials"]["red_plastic"];
+    if (registry().materials.factories.count("plastic")) {
+        EXPECT_EQ(mat["type"], "plastic");
+    } else {
+        EXPECT_EQ(mat["type"], "diffuse");  // no plastic plugin: roughness is dropped
+        EXPECT_NEAR(mat["reflectance"][0].get<double>(), 0.8, 1e-6);
+    }
+    ASSERT_EQ(j["lights"].size(), 1u);
+    EXPECT_EQ(j["lights"][0]["type"], "point");
+    EXPECT_EQ(j["lights"][0]["position"], json::parse("[0.0, 3.0, 0.0]"));
+    EXPECT_EQ(j["lights"][0]["intensity"], json::parse("[20.0, 20.0, 20.0]"));
+
+    // No camera, no punctual lights, an emissive metal.
+    json m = gltf_scene_to_json(fixture("mixed.gltf"));
+    EXPECT_EQ(m["camera"]["target"], json::parse("[-0.5, 2.0, 0.5]"));  // centre of the bounds
+    ASSERT_EQ(m["shapes"].size(), 4u);
+    EXPECT_EQ(m["shapes"][0]["material"], "grey");
+    EXPECT_EQ(m["materials"]["grey"]["type"], "diffuse");
+    EXPECT_EQ(m["materials"]["lamp"]["type"], "conductor");
+    EXPECT_EQ(m["materials"]["lamp"]["material"], "none");
+    EXPECT_NEAR(m["materials"]["lamp"]["alpha"].get<double>(), 0.04, 1e-6);
+    EXPECT_FALSE(m["shapes"][0].contains("emitter"));
+    EXPECT_EQ(m["shapes"][1]["emitter"]["type"], "area");
+    EXPECT_EQ(m["shapes"][1]["emitter"]["radiance"], json::parse("[4.0, 2.0, 1.0]"));  // x emissiveStrength 4
+    EXPECT_TRUE(m["lights"].empty());  // emitters light it: no constant environment added
+}
+
+TEST(Gltf, FileAsScene) {
+    auto s = load_scene(fixture("quad.gltf"), {});
+    ASSERT_TRUE(s->camera);
+    EXPECT_EQ(s->camera->width(), 720);
+    EXPECT_EQ(s->camera->height(), 480);
+    ASSERT_EQ(s->shapes.size(), 1u);
+    EXPECT_TRUE(s->shapes[0]->material);
+    ASSERT_EQ(s->lights.size(), 1u);
+    EXPECT_TRUE(s->lights[0]->is_delta());
+    EXPECT_EQ(s->spp, 16);
+
+    auto g = load_scene(fixture("quad.glb"), {"sampler.sample_count=3", "camera.width=100"});
+    EXPECT_EQ(g->spp, 3);
+    EXPECT_EQ(g->camera->width(), 100);
+
+    auto m = load_scene(fixture("mixed.gltf"), {});
+    ASSERT_EQ(m->shapes.size(), 4u);
+    ASSERT_EQ(m->lights.size(), 2u);  // the emissive primitive, instanced twice
+    EXPECT_EQ(m->shapes[1]->emitter, m->lights[0]);
+    EXPECT_TRUE(m->infinite_lights.empty());
+    EXPECT_EQ(m->shapes[0]->material, m->shapes[2]->material);  // one meso material per glTF material
+    m->build();
+}
+
+TEST(Gltf, NoLightsAddsConstantEnvironment) {
+    GltfTemp tmp;
+    std::string p = tmp.write("t.gltf", triangle_gltf(kGoodAccessors));
+    json j = gltf_scene_to_json(p);
+    ASSERT_EQ(j["lights"].size(), 1u);
+    EXPECT_EQ(j["lights"][0], json::parse(R"({"type": "constant", "radiance": 1.0})"));
+    auto s = load_scene(p, {});
+    ASSERT_EQ(s->infinite_lights.size(), 1u);
+}
+
+TEST(Gltf, Errors) {
+    GltfTemp tmp;
+    std::string missing = tmp.write("x.txt", "") + ".gltf";
+    EXPECT_EQ(error_of([&] { load_gltf_meshes(missing); }), missing + ": file not found");
+    EXPECT_EQ(error_of([&] { load_scene(missing, {}); }), missing + ": file not found");
+
+    std::string garbage = tmp.write("garbage.gltf", "this is { not glTF");
+    std::string msg = error_of([&] { load_gltf_meshes(garbage); });
+    EXPECT_EQ(msg.substr(0, garbage.size() + 20), garbage + ": cannot load glTF: ") << msg;
+
+    std::string badglb = tmp.write("bad.glb", std::string("glTF\x02\0\0\0\x10\0\0\0garbage!", 20));
+    msg = error_of([&] { load_gltf_meshes(badglb); });
+    EXPECT_EQ(msg.substr(0, badglb.size() + 20), badglb + ": cannot load glTF: ") << msg;
+
+    // An accessor reaching past its buffer view.
+    std::string overrun = tmp.write("overrun.gltf", triangle_gltf(
+        R"([{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 4, "min": [0,0,0], "max": [1,1,0]},
+            {"bufferView": 1, "componentType": 5123, "type": "SCALAR", "count": 3}])"));
+    EXPECT_EQ(error_of([&] { load_gltf_meshes(overrun); }),
+              overrun + ": mesh 0 primitive 0: POSITION: accessor data lies outside its buffer (48 bytes needed at offset 0, buffer has 42)");
+
+    // A corrupt count is refused before anything is allocated.
+    std::string huge = tmp.write("huge.gltf", triangle_gltf(
+        R"([{"componentType": 5126, "type": "VEC3", "count": 2000000000, "min": [0,0,0], "max": [1,1,0]},
+            {"bufferView": 1, "componentType": 5123, "type": "SCALAR", "count": 3}])"));
+    EXPECT_EQ(error_of([&] { load_gltf_meshes(huge); }),
+              huge + ": mesh 0 primitive 0: POSITION: accessor without data has 2000000000 elements");
+    std::string huge2 = tmp.write("huge2.gltf", triangle_gltf(
+        R"([{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 2000000000, "min": [0,0,0], "max": [1,1,0]},
+            {"bufferView": 1, "componentType": 5123, "type": "SCALAR", "count": 3}])"));
+    msg = error_of([&] { load_gltf_meshes(huge2); });
+    EXPECT_NE(msg.find("accessor data lies outside its buffer"), std::string::npos) << msg;
+
+    // An index beyond the vertices.
+    std::string badindex = tmp.write("badindex.gltf", triangle_gltf(
+        R"([{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 2, "min": [0,0,0], "max": [1,1,0]},
+            {"bufferView": 1, "componentType": 5123, "type": "SCALAR", "count": 3}])"));
+    EXPECT_EQ(error_of([&] { load_gltf_meshes(badindex); }),
+              badindex + ": mesh 0 primitive 0: indices: index 2 = 2 is out of range (2 vertices)");
+
+    // Integer positions are not allowed unless normalised.
+    std::string intpos = tmp.write("intpos.gltf", triangle_gltf(
+        R"([{"bufferView": 0, "componentType": 5125, "type": "VEC3", "count": 3, "min": [0,0,0], "max": [1,1,0]},
+            {"bufferView": 1, "componentType": 5123, "type": "SCALAR", "count": 3}])"));
+    EXPECT_EQ(error_of([&] { load_gltf_meshes(intpos); }),
+              intpos + ": mesh 0 primitive 0: POSITION: integer components must be normalized");
+
+    // Errors from the shape plugin are located in the scene file.
+    std::string scene = tmp.write("s.json", R"({"camera": {"type": "perspective"}, "shapes": [{"type": "gltf", "filename": "overrun.gltf"}]})");
+    EXPECT_EQ(error_of([&] { load_scene(scene, {}); }),
+              scene + ": shapes[0].filename: " + overrun +
+                  ": mesh 0 primitive 0: POSITION: accessor data lies outside its buffer (48 bytes needed at offset 0, buffer has 42)");
+}
+
+TEST(Gltf, ModeAndTransformEdgeCases) {
+    GltfTemp tmp;
+    // A zero scale makes the node transform singular: the primitive is skipped.
+    std::string zero = tmp.write("zero.gltf", [] {
+        json j = json::parse(triangle_gltf(kGoodAccessors));
+        j["nodes"][0]["scale"] = {0, 1, 1};
+        return j.dump();
+    }());
+    EXPECT_TRUE(load_gltf_meshes(zero).empty());
+    // A node cycle is an error, not a stack overflow.
+    std::string cycle = tmp.write("cycle.gltf", [] {
+        json j = json::parse(triangle_gltf(kGoodAccessors));
+        j["nodes"] = json::parse(R"([{"mesh": 0, "children": [1]}, {"children": [0]}])");
+        return j.dump();
+    }());
+    std::string msg = error_of([&] { load_gltf_meshes(cycle); });
+    EXPECT_NE(msg.find(cycle + ": "), std::string::npos) << msg;
+    // Fan mode and no indices.
+    std::string fan = tmp.write("fan.gltf", [] {
+        json j = json::parse(triangle_gltf(kGoodAccessors, R"(, "mode": 6)"));
+        j["meshes"][0]["primitives"][0].erase("indices");
+        return j.dump();
+    }());
+    auto meshes = load_gltf_meshes(fan);
+    ASSERT_EQ(meshes.size(), 1u);
+    EXPECT_EQ(meshes[0].indices, (std::vector<uint32_t>{1, 2, 0}));
+}
+
+// Mangled glTF files (value swaps, truncations, byte edits of the JSON, including the
+// accessor/buffer-view numbers) must load (as meshes and as a scene) or throw MesoError:
+// never crash or read out of bounds.
+TEST(GltfFuzz, MangledFilesOnlyEverThrowMesoError) {
+    GltfTemp tmp;
+    std::vector<std::string> bases;
+    for (const char *name : {"quad.gltf", "mixed.gltf"}) {
+        std::ifstream f(fixture(name));
+        bases.emplace_back(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+    }
+    static const char *values[] = {"0", "1", "2", "3", "-1", "7", "100", "65536", "4294967295", "1e30", "0.5", "5120",
+                                   "5121", "5123", "5125", "5126", "\"VEC2\"", "\"VEC4\"", "\"SCALAR\"", "\"MAT4\"",
+                                   "null", "[]", "{}", "true", "\"x\""};
+    std::mt19937 rng(7u);
+    int ok = 0, errors = 0;
+    for (int v = 0; v < 1000; ++v) {
+        std::string s = bases[size_t(v) % bases.size()];
+        int kind = int(rng() % 3);
+        if (kind == 0) {
+            s = s.substr(0, rng() % s.size());
+        } else if (kind == 1) {
+            for (int k = 0; k < 3; ++k) s[rng() % s.size()] = "0123456789[]{},:\"-"[rng() % 18];
+        } else {
+            // Replace a number or quoted word outside the base64 buffer by another value.
+            for (int tries = 0; tries < 50; ++tries) {
+                size_t i = rng() % s.size();
+                if (!(std::isdigit(static_cast<unsigned char>(s[i])) || s[i] == '"')) continue;
+                if (s.rfind("base64", i) != std::string::npos && s.find('"', s.rfind("base64", i)) > i) continue;
+                size_t e = i + 1;
+                if (s[i] == '"') e = s.find('"', i + 1) + 1;
+                else while (e < s.size() && (std::isdigit(static_cast<unsigned char>(s[e])) || s[e] == '.' || s[e] == 'e')) ++e;
+                s.replace(i, e - i, values[rng() % (sizeof(values) / sizeof(values[0]))]);
+                break;
+            }
+        }
+        std::string p = tmp.write("current.gltf", s);
+        try {
+            auto prims = load_gltf_primitives(p);
+            for (const auto &g : *prims) g.mesh.validate(g.name);
+            load_scene(p, {})->build();  // the file as a scene: camera, lights, materials
+            ok++;
+        } catch (const MesoError &) {
+            errors++;
+        } catch (const std::exception &e) {
+            ADD_FAILURE() << "variant " << v << " threw a non-MesoError: " << e.what() << "\n--- input ---\n" << s;
+        }
+    }
+    std::printf("[ fuzz    ] 1000 glTF variants: %d loaded, %d MesoError\n", ok, errors);
+    EXPECT_EQ(ok + errors, 1000);
+}
