@@ -12,6 +12,9 @@
 #include <gtest/gtest.h>
 #include <cmath>
 #include <complex>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -629,6 +632,23 @@ TEST(MaterialAnalytic, BlinnPhongSmithLambda) {
     EXPECT_TRUE(std::isinf(blinnphong_lambda(10, 0.0)));
 }
 
+TEST(MaterialAnalytic, BlinnPhongTexturedExponentMatchesConstant) {
+    // A textured exponent takes the direct-quadrature Λ path, a constant one the table.
+    auto tex = make_material(
+        R"({"type":"blinnphong","exponent":{"type":"checkerboard","color0":5,"color1":50},"eta":1.5})");
+    auto c5 = make_material(R"({"type":"blinnphong","exponent":5,"eta":1.5})");
+    auto c50 = make_material(R"({"type":"blinnphong","exponent":50,"eta":1.5})");
+    ShadingContext even, odd;
+    even.uv = Vec2(0.1f, 0.1f);
+    odd.uv = Vec2(0.6f, 0.1f);
+    for (double t : {20.0, 70.0, 88.0}) {
+        Vec3 wo = dir_deg(t, 0), wi = dir_deg(75, 170);
+        EXPECT_NEAR(tex->eval(even, wo, wi).g, c5->eval(kCtx, wo, wi).g, 1e-4 * c5->eval(kCtx, wo, wi).g) << t;
+        EXPECT_NEAR(tex->eval(odd, wo, wi).g, c50->eval(kCtx, wo, wi).g, 1e-4 * c50->eval(kCtx, wo, wi).g) << t;
+        EXPECT_NEAR(tex->pdf(odd, wo, wi), c50->pdf(kCtx, wo, wi), 1e-5 * c50->pdf(kCtx, wo, wi)) << t;
+    }
+}
+
 TEST(MaterialAnalytic, BlinnPhongBeckmannEquivalence) {
     // At s = 2/α² − 2, Blinn-Phong's D tends to Beckmann's for small α (Walter 2007 §5.2).
     double alpha = 0.05, s = 2 / (alpha * alpha) - 2;
@@ -680,6 +700,89 @@ TEST(MaterialParameters, LocatedErrors) {
     EXPECT_EQ(error_of(R"({"type":"diffuse","reflectanse":0.3})"),
               "material.reflectanse: unknown parameter 'reflectanse' for material 'diffuse'");
     EXPECT_EQ(error_of(R"({"type":"dielectric","int_ior":"water","ext_ior":"air"})"), "");
+}
+
+
+// ------------------------------------------------------------------ the χ² machinery itself
+
+TEST(Chi2, IncompleteGammaAndSidak) {
+    for (double x : {0.1, 1.0, 3.0, 20.0}) {
+        EXPECT_NEAR(gamma_q(1.0, x), std::exp(-x), 1e-14);
+        EXPECT_NEAR(gamma_q(0.5, x), std::erfc(std::sqrt(x)), 1e-13);
+        EXPECT_NEAR(gamma_p(2.5, x) + gamma_q(2.5, x), 1.0, 1e-14);
+    }
+    // χ² with 2 dof: p = exp(-x/2); 100 dof at its 99% quantile 135.807
+    EXPECT_NEAR(chi2_p_value(4.0, 2), std::exp(-2.0), 1e-14);
+    EXPECT_NEAR(chi2_p_value(135.807, 100), 0.01, 1e-5);
+    EXPECT_NEAR(sidak_alpha(0.01, 1), 0.01, 1e-15);
+    EXPECT_NEAR(1 - std::pow(1 - sidak_alpha(0.01, 150), 150), 0.01, 1e-12);
+}
+
+/// A deliberately wrong material: samples the cosine-weighted hemisphere but reports a
+/// uniform pdf (or, with `bad_weight`, the right pdf and a weight off by 1%).
+class BrokenMaterial final : public Material {
+public:
+    explicit BrokenMaterial(bool bad_weight) : m_bad_weight(bad_weight) {}
+    uint32_t flags() const override { return BSDF_DiffuseReflection; }
+    Spectrum eval(const ShadingContext &, const Vec3 &wo, const Vec3 &wi) const override {
+        return (wo.z > 0 && wi.z > 0) ? Spectrum(wi.z * InvPi) : Spectrum(0.f);
+    }
+    float pdf(const ShadingContext &, const Vec3 &wo, const Vec3 &wi) const override {
+        if (!(wo.z > 0 && wi.z > 0)) return 0.f;
+        return m_bad_weight ? wi.z * InvPi : Inv2Pi;
+    }
+    bool sample(const ShadingContext &ctx, const Vec3 &wo, float, Vec2 u, BSDFSample &out) const override {
+        float r = std::sqrt(u.x), ph = 2 * Pi * u.y;
+        out.wi = Vec3(r * std::cos(ph), r * std::sin(ph), std::sqrt(std::max(0.f, 1 - u.x)));
+        if (!(out.wi.z > 0)) return false;
+        out.pdf = pdf(ctx, wo, out.wi);
+        out.weight = eval(ctx, wo, out.wi) / out.pdf * (m_bad_weight ? 1.01f : 1.f);
+        out.flags = BSDF_DiffuseReflection;
+        return true;
+    }
+    std::string to_string() const override { return "broken"; }
+
+private:
+    bool m_bad_weight;
+};
+
+TEST(Chi2, RejectsAWrongPdfAndDumpsHistograms) {
+    auto dir = std::filesystem::temp_directory_path() / "meso_chi2_dump_test";
+    std::filesystem::remove_all(dir);
+    setenv("MESO_CHI2_DUMP_DIR", dir.string().c_str(), 1);
+    Chi2Options opt;
+    opt.samples = 20000;
+    opt.name = "broken material";
+    Chi2Result r = chi2_material_test(BrokenMaterial(false), kCtx, dir_deg(30, 0), opt);
+    unsetenv("MESO_CHI2_DUMP_DIR");
+    EXPECT_FALSE(r.passed);
+    EXPECT_LT(r.p_value, 1e-10);
+    EXPECT_NE(r.message.find("χ²"), std::string::npos) << r.message;
+    ASSERT_FALSE(r.dump_path.empty());
+    EXPECT_EQ(std::filesystem::path(r.dump_path).filename().string(), "broken_material.json");
+    std::ifstream f(r.dump_path);
+    nlohmann::json j = nlohmann::json::parse(f);
+    EXPECT_EQ(j["observed"].size(), size_t(j["n_phi"].get<int>() * j["n_cos_theta"].get<int>()));
+    EXPECT_EQ(j["expected"].size(), j["observed"].size());
+    std::filesystem::remove_all(dir);
+}
+
+TEST(Chi2, ReportsWeightsThatDisagreeWithEvalOverPdf) {
+    Chi2Options opt;
+    opt.samples = 20000;
+    Chi2Result r = chi2_material_test(BrokenMaterial(true), kCtx, dir_deg(30, 0), opt);
+    EXPECT_TRUE(r.chi2_passed) << r.message;  // the directions themselves are right
+    EXPECT_FALSE(r.passed);
+    EXPECT_NE(r.message.find("sample weights differ from eval/pdf"), std::string::npos) << r.message;
+    EXPECT_EQ(r.weight_mismatch, r.smooth);
+    EXPECT_NEAR(r.max_weight_rel_error, 0.01 / 1.01, 1e-4);
+    EXPECT_EQ(r.pdf_mismatch, 0u);
+}
+
+TEST(Chi2, IntegratePdfOfDiffuseIsOne) {
+    auto m = make_material(R"({"type":"diffuse"})");
+    EXPECT_NEAR(integrate_pdf(*m, kCtx, dir_deg(10, 0), true), 1.0, 1e-7);
+    EXPECT_NEAR(integrate_pdf(*m, kCtx, dir_deg(10, 0), false), 1.0, 1e-7);
 }
 
 }  // namespace

@@ -264,9 +264,9 @@ TEST(SceneParser, EmittersAndLights) {
     EXPECT_NEAR(si.p.z, 0.f, 1e-4f);
 
     std::string q = dir.write("t2.json", scene_with(R"("shapes": [{"type": "sphere", "emitter": {"type": "point"}}])"));
-    EXPECT_EQ(load_error(q), q + ": shapes[0].emitter.type: a 'point' light cannot be the emitter of a shape (use an 'area' light)");
+    EXPECT_EQ(load_error(q), q + ": shapes[0].emitter.type: light type 'point' cannot be the emitter of a shape (use an 'area' light)");
     std::string r = dir.write("t3.json", scene_with(R"("lights": [{"type": "area", "radiance": 1}])"));
-    EXPECT_EQ(load_error(r), r + ": lights[0].type: a 'area' light must be attached to a shape (as its \"emitter\")");
+    EXPECT_EQ(load_error(r), r + ": lights[0].type: light type 'area' must be attached to a shape (as its \"emitter\")");
 }
 
 // ------------------------------------------------------------------------------------------

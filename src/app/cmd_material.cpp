@@ -33,7 +33,7 @@ using ojson = nlohmann::ordered_json;
 std::shared_ptr<Material> load_material(const std::string &arg, nlohmann::json &storage) {
     auto ctx = std::make_shared<LoadContext>();
     size_t first = arg.find_first_not_of(" \t\r\n");
-    bool is_inline = first != std::string::npos && arg[first] == '{';
+    bool is_inline = first != std::string::npos && (arg[first] == '{' || arg[first] == '[');
     std::string text;
     if (is_inline) {
         ctx->file = "<inline material>";
@@ -165,6 +165,7 @@ SubcommandRegistrar reg({"material", "Evaluate, integrate or χ²-test one mater
         ojson j;
         j["p_value"] = r.p_value;
         j["passed"] = r.passed;
+        j["chi2_passed"] = r.chi2_passed;
         j["chi2"] = r.chi2;
         j["dof"] = r.dof;
         j["significance"] = r.significance;

@@ -120,7 +120,10 @@ Spectrum EnvMapLight::radiance(Vec3 d_world) const {
     float x = uv.x * m_w - 0.5f, y = uv.y * m_h - 0.5f;
     float fx0 = std::floor(x), fy0 = std::floor(y);
     float fx = x - fx0, fy = y - fy0;
-    int x0 = ((int(fx0) % m_w) + m_w) % m_w, x1 = (x0 + 1) % m_w;
+    // u is in [0, 1), so fx0 is in [-1, m_w - 1]: wrap without integer division.
+    int x0 = int(fx0), x1 = x0 + 1;
+    if (x0 < 0) x0 += m_w;
+    if (x1 >= m_w) x1 -= m_w;
     int y0 = clamp(int(fy0), 0, m_h - 1), y1 = clamp(int(fy0) + 1, 0, m_h - 1);
     return (texel(x0, y0) * (1.f - fx) + texel(x1, y0) * fx) * (1.f - fy) +
            (texel(x0, y1) * (1.f - fx) + texel(x1, y1) * fx) * fy;

@@ -179,34 +179,38 @@ Vec3 MicrofacetDistribution::sample_visible_ggx(const Vec3 &wo, Vec2 u) const {
 
 namespace {
 /// Heitz & d'Eon 2014 visible-slope sampling for the unit-roughness isotropic Beckmann
-/// distribution seen from elevation theta (cos_t, sin_t): x-slope by inverting its CDF,
-///   C(b) = (1 + b + tan(t)/sqrt(pi) exp(-erfinv(b)^2)) / (1 + erf(cot t) + tan(t)/sqrt(pi) exp(-cot^2 t)),
-/// in the erf domain b = erf(x) (pbrt-v3 BeckmannSample11), with safeguarded Newton to
-/// 1e-13 in double; y-slope is an independent standard normal / sqrt(2).
+/// distribution seen from elevation theta (cos_t, sin_t). The x-slope has the CDF
+///   C(x) = (1 + erf(x) + tan(t)/sqrt(pi) exp(-x^2)) / (1 + erf(cot t) + tan(t)/sqrt(pi) exp(-cot^2 t))
+/// on (-inf, cot t], inverted by safeguarded Newton in double precision to |C − u| < 1e-13
+/// (initial guess: pbrt-v3's fit in the erf domain); the y-slope is an independent
+/// normal of variance 1/2: erfinv(2 u2 − 1).
 void beckmann_sample11(double cos_t, double sin_t, double u1, double u2, double &sx, double &sy) {
     u1 = clamp(u1, 1e-12, 1.0 - 1e-12);
     u2 = clamp(u2, 1e-12, 1.0 - 1e-12);
     double tan_t = sin_t / cos_t;
-    double cot_t = cos_t / sin_t;  // +inf at normal incidence: handled by erf/exp limits
-    double a = -1.0, c = std::erf(cot_t);
+    double cot_t = cos_t / sin_t;  // +inf at normal incidence: handled by the erf/exp limits
+    double c = std::erf(cot_t);
     double theta = std::atan2(sin_t, cos_t);
     double fit = 1.0 + theta * (-0.876 + theta * (0.4265 - 0.0594 * theta));
-    double b = c - (1.0 + c) * std::pow(1.0 - u1, fit);
-    double tail = (sin_t > 0.0) ? tan_t / kSqrtPi * std::exp(-cot_t * cot_t) : 0.0;
-    double norm = 1.0 / (1.0 + c + tail);
+    double b0 = c - (1.0 + c) * std::pow(1.0 - u1, fit);
+    double tail_c = (sin_t > 0.0) ? tan_t / kSqrtPi * std::exp(-cot_t * cot_t) : 0.0;
+    double norm = 1.0 / (1.0 + c + tail_c);
+    double lo = -30.0, hi = std::min(cot_t, 30.0);
+    double x = clamp(erfinv(clamp(b0, -1.0 + 1e-15, 1.0 - 1e-15)), lo, hi);
     for (int it = 0; it < 100; ++it) {
-        if (!(b >= a && b <= c)) b = 0.5 * (a + c);
-        double x = erfinv(b);
-        double ex = (sin_t > 0.0) ? tan_t / kSqrtPi * std::exp(-x * x) : 0.0;
-        double value = norm * (1.0 + b + ex) - u1;
-        double deriv = norm * (1.0 - x * tan_t);
+        double e = std::exp(-x * x);
+        // 1 + erf(x) = erfc(-x): keeps precision in the left tail (u1 -> 0)
+        double value = norm * (std::erfc(-x) + (sin_t > 0.0 ? tan_t / kSqrtPi * e : 0.0)) - u1;
         if (std::abs(value) < 1e-13) break;
-        if (value > 0.0) c = b;
-        else a = b;
-        if (c - a < 1e-16) break;
-        b = deriv > 0.0 ? b - value / deriv : 0.5 * (a + c);
+        if (value > 0.0) hi = x;
+        else lo = x;
+        double deriv = norm * (2.0 / kSqrtPi) * e * (1.0 - x * tan_t);
+        double xn = deriv > 0.0 ? x - value / deriv : 0.5 * (lo + hi);
+        if (!(xn > lo && xn < hi)) xn = 0.5 * (lo + hi);
+        if (xn == x || hi - lo < 1e-15) break;
+        x = xn;
     }
-    sx = erfinv(b);
+    sx = x;
     sy = erfinv(2.0 * u2 - 1.0);
 }
 }  // namespace

@@ -177,7 +177,7 @@ std::vector<double> integrate_cells(const Material &mat, const ShadingContext &c
             coarse *= (2.0 * hth / 3.0) * (2.0 * hphi / 3.0);
             int cell = iz * g.n_phi + ip;
             double E = samples * std::abs(fine);
-            double tol = std::max(0.05, 0.02 * std::sqrt(E)) / samples;
+            double tol = std::max(0.02, 2e-3 * std::sqrt(E)) / samples;
             double O = observed ? (*observed)[cell] : E;
             bool suspicious = std::abs(O - E) > 4.0 * std::sqrt(E) + 4.0;
             if (!suspicious && std::abs(fine - coarse) <= 15.0 * tol) {
@@ -193,7 +193,7 @@ std::vector<double> integrate_cells(const Material &mat, const ShadingContext &c
                     for (int i = 0; i < 3; ++i)
                         for (int j = 0; j < 3; ++j) gg[i * 3 + j] = row[(2 * a + i) * size_t(nj) + ip * sub + 2 * b + j];
                     double t0 = th_top + 2 * a * hth, p0 = (ip * sub + 2 * b) * hphi;
-                    sum += adaptive_rect(f, t0, t0 + 2 * hth, p0, p0 + 2 * hphi, gg, rect_tol, 0, suspicious ? 3 : 0, 8);
+                    sum += adaptive_rect(f, t0, t0 + 2 * hth, p0, p0 + 2 * hphi, gg, rect_tol, 0, suspicious ? 3 : 0, 6);
                 }
             out[cell] = sum;
         }
@@ -301,17 +301,25 @@ Chi2Result chi2_material_test(const Material &mat, const ShadingContext &ctx, co
     std::vector<std::string> problems;
     if (r.invalid) problems.push_back(fmt::format("{} samples had a non-finite/negative weight or pdf", r.invalid));
     if (r.outside) problems.push_back(fmt::format("{} samples fell below the horizon of a reflector", r.outside));
+    if (r.weight_mismatch)
+        problems.push_back(fmt::format("{} sample weights differ from eval/pdf (max rel. error {:.3g})", r.weight_mismatch,
+                                       r.max_weight_rel_error));
+    if (r.pdf_mismatch)
+        problems.push_back(fmt::format("{} sample pdfs differ from pdf(wi) (max rel. error {:.3g})", r.pdf_mismatch,
+                                       r.max_pdf_rel_error));
     if (zero_cells_hit) problems.push_back(fmt::format("{} samples fell in cells where the pdf integrates to 0", zero_cells_hit));
     if (r.smooth == 0 && r.pdf_integral <= 1e-12) {
         // Nothing continuous to test (a delta-only material): the histogram is empty and
         // pdf() is 0 everywhere, which is what the contract asks for.
         r.p_value = 1.0;
         r.dof = 0;
+        r.chi2_passed = true;
     } else if (r.dof < 1) {
         problems.push_back("too few populated cells for a χ² test (increase samples)");
     } else {
         r.p_value = chi2_p_value(r.chi2, r.dof);
-        if (!(r.p_value >= r.significance))
+        r.chi2_passed = r.p_value >= r.significance;
+        if (!r.chi2_passed)
             problems.push_back(fmt::format("χ² = {:.2f} with {} dof: p = {:.3g} < {:.3g}", r.chi2, r.dof, r.p_value,
                                            r.significance));
     }

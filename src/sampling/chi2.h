@@ -35,7 +35,8 @@ struct Chi2Options {
 };
 
 struct Chi2Result {
-    bool passed = false;          ///< χ² accepted and no structural error
+    bool passed = false;          ///< χ² accepted, weights/pdfs consistent, no structural error
+    bool chi2_passed = false;     ///< the χ² part alone (p >= significance)
     double p_value = 0.0;
     double chi2 = 0.0;
     int dof = 0;

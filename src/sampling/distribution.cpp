@@ -34,11 +34,18 @@ Distribution1D::Distribution1D(const std::vector<float> &weights) {
 }
 
 size_t Distribution1D::find_interval(double u) const {
-    // Cell i with cdf[i] <= u < cdf[i+1] (such a cell has positive width), found by a short
-    // scan from the guide entry. For u at or beyond the end, step back over zero-width cells.
+    // Cell i with cdf[i] <= u < cdf[i+1] (such a cell has positive width). The guide entries
+    // of u's bucket and the next bound the answer; a binary search inside that range keeps
+    // skewed distributions (many tiny cells in one bucket, e.g. a sun row) logarithmic.
     const size_t n = m_func.size();
-    size_t i = m_guide[std::min(n - 1, size_t(std::max(0.0, u) * double(n)))];
-    while (i + 1 < n && m_cdf[i + 1] <= u) ++i;
+    const size_t k = std::min(n - 1, size_t(std::max(0.0, u) * double(n)));
+    size_t lo = m_guide[k], hi = k + 1 < n ? std::min<size_t>(n - 1, m_guide[k + 1] + 1) : n - 1;
+    while (lo < hi) {  // first i in [lo, hi] with cdf[i+1] > u
+        size_t mid = (lo + hi) / 2;
+        if (m_cdf[mid + 1] <= u) lo = mid + 1;
+        else hi = mid;
+    }
+    size_t i = lo;
     while (i > 0 && m_cdf[i + 1] - m_cdf[i] == 0.0) --i;
     return i;
 }

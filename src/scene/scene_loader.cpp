@@ -227,7 +227,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file) {
                 Properties ep = p.child("emitter");
                 emitter = create_light(ep);
                 if (emitter->is_delta() || emitter->is_infinite())
-                    ep.fail("type", fmt::format("a '{}' light cannot be the emitter of a shape (use an 'area' light)", ep.type()));
+                    ep.fail("type", fmt::format("light type '{}' cannot be the emitter of a shape (use an 'area' light)", ep.type()));
             }
             std::shared_ptr<Shape> shape = create_shape(p);
             shape->material = material;
@@ -245,7 +245,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file) {
         for (const Properties &p : root.children("lights")) {
             std::shared_ptr<Light> light = create_light(p);
             if (!light->is_delta() && !light->is_infinite())
-                p.fail("type", fmt::format("a '{}' light must be attached to a shape (as its \"emitter\")", p.type()));
+                p.fail("type", fmt::format("light type '{}' must be attached to a shape (as its \"emitter\")", p.type()));
             if (light->is_infinite()) scene->infinite_lights.push_back(light.get());
             scene->lights.push_back(light);
         }
