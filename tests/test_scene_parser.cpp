@@ -185,7 +185,9 @@ TEST(SceneParser, MissingReferencedFile) {
 
 TEST(SceneParser, MalformedExr) {
     TempDir dir;
-    dir.write("garbage.exr", std::string("\x76\x2f\x31\x01 this is not an OpenEXR file \xff\xfe\x00\x01", 40));
+    // The OpenEXR magic number, then garbage.
+    static const char garbage[] = "\x76\x2f\x31\x01 this is not an OpenEXR file \xff\xfe\x00\x01";
+    dir.write("garbage.exr", std::string(garbage, sizeof(garbage) - 1));
     std::string p = dir.write("t.json", scene_with(R"("lights": [{"type": "envmap", "filename": "garbage.exr"}])"));
     std::string msg = load_error(p);
     // The envmap plugin owns the rest of the message (it comes from OpenImageIO).
