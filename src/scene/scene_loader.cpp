@@ -61,8 +61,8 @@ public:
 
     bool operator()(int, json::parse_event_t event, json &parsed) {
         switch (event) {
-            case json::parse_event_t::object_start: m_stack.push_back(Frame{false}); break;
-            case json::parse_event_t::array_start: m_stack.push_back(Frame{true}); break;
+            case json::parse_event_t::object_start: m_stack.push_back(Frame{false, 0, {}, {}}); break;
+            case json::parse_event_t::array_start: m_stack.push_back(Frame{true, 0, {}, {}}); break;
             case json::parse_event_t::key: {
                 Frame &f = m_stack.back();
                 f.key = parsed.get<std::string>();
