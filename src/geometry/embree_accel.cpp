@@ -61,28 +61,27 @@ static void setup_ray(const Ray &ray, RTCRay &r) {
     r.id = 0;
 }
 
-bool EmbreeAccel::intersect(const Ray &ray, SurfaceInteraction &si) const {
+/// Closest-hit query; returns false on a miss.
+static bool trace_closest(RTCScene scene, const Ray &ray, RTCRayHit &rh) {
     RTCIntersectContext ctx;
     rtcInitIntersectContext(&ctx);
-    RTCRayHit rh;
     setup_ray(ray, rh.ray);
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(m_scene, &ctx, &rh);
-    if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) return false;
+    rtcIntersect1(scene, &ctx, &rh);
+    return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+}
+
+bool EmbreeAccel::intersect(const Ray &ray, SurfaceInteraction &si) const {
+    RTCRayHit rh;
+    if (!trace_closest(m_scene, ray, rh)) return false;
     m_shapes[rh.hit.geomID]->fill_interaction(ray, rh.ray.tfar, rh.hit.primID, rh.hit.u, rh.hit.v, si);
     return true;
 }
 
 float EmbreeAccel::intersect_t(const Ray &ray) const {
-    RTCIntersectContext ctx;
-    rtcInitIntersectContext(&ctx);
     RTCRayHit rh;
-    setup_ray(ray, rh.ray);
-    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(m_scene, &ctx, &rh);
-    return rh.hit.geomID == RTC_INVALID_GEOMETRY_ID ? Infinity : rh.ray.tfar;
+    return trace_closest(m_scene, ray, rh) ? rh.ray.tfar : Infinity;
 }
 
 bool EmbreeAccel::occluded(const Ray &ray) const {
