@@ -4,6 +4,7 @@
 // histograms (chi-square) and error messages. Fixed seeds; tolerances are 5 standard
 // errors of the estimator unless stated otherwise.
 #include <gtest/gtest.h>
+#include "scratch_dir.h"
 #include <OpenImageIO/imageio.h>
 #include <filesystem>
 #include <fstream>
@@ -596,21 +597,7 @@ double gamma_q(double a, double x) {
 }
 
 /// Per-process scratch directory, removed at exit.
-std::string tmp_dir() {
-    struct Dir {
-        std::string path;
-        ~Dir() {
-            std::error_code ec;
-            fs::remove_all(path, ec);
-        }
-    };
-    static Dir dir{[] {
-        fs::path p = fs::temp_directory_path() / ("meso_test_lights_" + std::to_string(::getpid()));
-        fs::create_directories(p);
-        return p.string();
-    }()};
-    return dir.path;
-}
+std::string tmp_dir() { return meso::test::scratch_dir("meso_test_lights"); }
 
 void write_float_image(const std::string &path, const Image &img) {
     auto out = OIIO::ImageOutput::create(path);

@@ -3,6 +3,7 @@
 // MIP pyramid (level selection, means preserved for odd sizes, trilinear blending) and
 // error messages for missing or malformed files.
 #include <gtest/gtest.h>
+#include "scratch_dir.h"
 #include <OpenImageIO/imageio.h>
 #include <filesystem>
 #include <fstream>
@@ -22,21 +23,7 @@ namespace fs = std::filesystem;
 namespace {
 
 /// Per-process scratch directory, removed at exit.
-std::string tmp_dir() {
-    struct Dir {
-        std::string path;
-        ~Dir() {
-            std::error_code ec;
-            fs::remove_all(path, ec);
-        }
-    };
-    static Dir dir{[] {
-        fs::path p = fs::temp_directory_path() / ("meso_test_textures_" + std::to_string(::getpid()));
-        fs::create_directories(p);
-        return p.string();
-    }()};
-    return dir.path;
-}
+std::string tmp_dir() { return meso::test::scratch_dir("meso_test_textures"); }
 
 std::shared_ptr<LoadContext> scene_ctx() {
     auto ctx = std::make_shared<LoadContext>();

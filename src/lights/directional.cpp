@@ -18,7 +18,7 @@
 namespace meso {
 namespace {
 
-class DirectionalLight final : public Light {
+class DirectionalLight final : public DeltaLight {
 public:
     DirectionalLight(Vec3 dir, Spectrum E) : m_dir(normalize(dir)), m_irradiance(E) {}
 
@@ -31,9 +31,6 @@ public:
         out.delta = true;
         return true;
     }
-    float pdf(const LightSampleContext &, const Vec3 &, const LightHit &) const override { return 0.f; }
-    Spectrum eval(const LightHit &, const Vec3 &) const override { return Spectrum(0.f); }
-    bool is_delta() const override { return true; }
     float power() const override { return Pi * m_radius * m_radius * m_irradiance.average(); }
     std::string to_string() const override {
         return fmt::format("directional light towards [{}, {}, {}], irradiance [{}, {}, {}] W/m^2", m_dir.x, m_dir.y,

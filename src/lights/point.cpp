@@ -15,7 +15,7 @@
 namespace meso {
 namespace {
 
-class PointLight final : public Light {
+class PointLight final : public DeltaLight {
 public:
     PointLight(Vec3 pos, Spectrum intensity) : m_pos(pos), m_intensity(intensity) {}
 
@@ -31,9 +31,6 @@ public:
         out.delta = true;
         return true;
     }
-    float pdf(const LightSampleContext &, const Vec3 &, const LightHit &) const override { return 0.f; }
-    Spectrum eval(const LightHit &, const Vec3 &) const override { return Spectrum(0.f); }
-    bool is_delta() const override { return true; }
     float power() const override { return 4.f * Pi * m_intensity.average(); }
     std::string to_string() const override {
         return fmt::format("point light at [{}, {}, {}], intensity [{}, {}, {}] W/sr", m_pos.x, m_pos.y, m_pos.z,

@@ -23,7 +23,7 @@
 namespace meso {
 namespace {
 
-class SpotLight final : public Light {
+class SpotLight final : public DeltaLight {
 public:
     SpotLight(Vec3 pos, Vec3 dir, Spectrum I, float cutoff_deg, float beam_deg)
         : m_pos(pos), m_frame(normalize(dir)), m_intensity(I), m_cutoff(radians(cutoff_deg)),
@@ -55,9 +55,6 @@ public:
         out.delta = true;
         return true;
     }
-    float pdf(const LightSampleContext &, const Vec3 &, const LightHit &) const override { return 0.f; }
-    Spectrum eval(const LightHit &, const Vec3 &) const override { return Spectrum(0.f); }
-    bool is_delta() const override { return true; }
     float power() const override {
         double g = m_cutoff, b = m_beam;
         double solid = (g - b > 1e-6) ? 1.0 - (std::sin(g) - std::sin(b)) / (g - b) : 1.0 - std::cos(g);

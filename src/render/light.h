@@ -53,4 +53,13 @@ public:
     virtual void set_shape(const Shape *shape) { (void)shape; }
 };
 
+/// Base of lights that occupy no solid angle (point, spot, directional): BSDF sampling can
+/// never hit them, so pdf() and eval() are 0 and they are sampled with pdf 1.
+class DeltaLight : public Light {
+public:
+    float pdf(const LightSampleContext &, const Vec3 &, const LightHit &) const final { return 0.f; }
+    Spectrum eval(const LightHit &, const Vec3 &) const final { return Spectrum(0.f); }
+    bool is_delta() const final { return true; }
+};
+
 }  // namespace meso
