@@ -49,7 +49,8 @@ static Spectrum pixel_rgb(const Image &img, int x, int y) {
 }
 
 EnvMapLight::EnvMapLight(const Image &img, float scale, const Transform &to_world, std::string name)
-    : m_w(img.width), m_h(img.height), m_to_world(to_world), m_scale(scale), m_name(std::move(name)) {
+    : m_w(img.width), m_h(img.height), m_to_world(to_world), m_identity(to_world.is_identity()), m_scale(scale),
+      m_name(std::move(name)) {
     if (m_w <= 0 || m_h <= 0 || img.channels <= 0 || img.data.size() != size_t(m_w) * m_h * img.channels)
         throw MesoError("environment map is empty or malformed");
     if (!(scale >= 0.f) || !std::isfinite(scale)) throw MesoError("scale must be finite and non-negative");
@@ -115,8 +116,11 @@ Vec3 EnvMapLight::uv_to_direction(Vec2 uv) {
 }
 
 Spectrum EnvMapLight::radiance(Vec3 d_world) const {
-    Vec3 d = normalize(m_to_world.apply_inverse_vector(d_world));
-    Vec2 uv = direction_to_uv(d);
+    Vec3 d = normalize(m_identity ? d_world : m_to_world.apply_inverse_vector(d_world));
+    return radiance_uv(direction_to_uv(d));
+}
+
+Spectrum EnvMapLight::radiance_uv(Vec2 uv) const {
     float x = uv.x * m_w - 0.5f, y = uv.y * m_h - 0.5f;
     float fx0 = std::floor(x), fy0 = std::floor(y);
     float fx = x - fx0, fy = y - fy0;
@@ -130,7 +134,7 @@ Spectrum EnvMapLight::radiance(Vec3 d_world) const {
 }
 
 float EnvMapLight::pdf_world(Vec3 wi) const {
-    Vec3 d = normalize(m_to_world.apply_inverse_vector(wi));
+    Vec3 d = normalize(m_identity ? wi : m_to_world.apply_inverse_vector(wi));
     float sin_theta = std::sqrt(d.x * d.x + d.z * d.z);
     if (!(sin_theta > 0.f)) return 0.f;
     float pdf = m_distr.pdf(direction_to_uv(d)) / (2.f * Pi * Pi * sin_theta);
@@ -141,14 +145,16 @@ bool EnvMapLight::sample(const LightSampleContext &, Vec2 u, LightSample &out) c
     float pdf_uv;
     Vec2 uv = m_distr.sample_continuous(u, &pdf_uv);
     if (!(pdf_uv > 0.f)) return false;
-    Vec3 wi = normalize(m_to_world.apply_vector(uv_to_direction(uv)));
+    Vec3 wi = m_identity ? uv_to_direction(uv) : normalize(m_to_world.apply_vector(uv_to_direction(uv)));
     float pdf = pdf_world(wi);
     if (!(pdf > 0.f)) return false;
     out.wi = wi;
     out.dist = Infinity;
     out.pdf = pdf;
     out.delta = false;
-    out.L = radiance(wi);
+    // The sampled uv gives the radiance directly (the bilinear lookup is continuous, so this
+    // equals radiance(wi) up to float round-off, without a second atan2/acos).
+    out.L = radiance_uv(uv);
     return true;
 }
 

@@ -27,6 +27,8 @@ public:
     /// Radiance arriving from world direction `d` (pointing from the scene to the
     /// environment), bilinearly interpolated between texel centres (u wraps, v clamps).
     Spectrum radiance(Vec3 d_world) const;
+    /// Bilinear radiance at texture coordinates (u, v) in [0,1)^2.
+    Spectrum radiance_uv(Vec2 uv) const;
     /// ∫ L dω over the sphere, averaged over RGB (sr·W/m²/sr); power() = pi r^2 times this.
     double radiance_integral() const { return m_integral; }
     size_t memory_bytes() const;
@@ -49,6 +51,7 @@ private:
     int m_w = 0, m_h = 0;
     std::vector<Spectrum> m_texels;  ///< linear radiance × scale, row-major, top row first
     Transform m_to_world;
+    bool m_identity = true;  ///< to_world is the identity: skip the rotations
     Distribution2D m_distr;          ///< over (u, v), cell weights: luminance × sin(theta)
     double m_integral = 0;
     float m_radius = 1.f;
