@@ -34,20 +34,21 @@ Distribution1D::Distribution1D(const std::vector<float> &weights) {
 }
 
 size_t Distribution1D::find_interval(double u) const {
-    // Cell i with cdf[i] <= u < cdf[i+1] (such a cell has positive width). The guide entries
-    // of u's bucket and the next bound the answer; a binary search inside that range keeps
-    // skewed distributions (many tiny cells in one bucket, e.g. a sun row) logarithmic.
+    // Cell i with cdf[i] <= u < cdf[i+1]. The guide entries of u's bucket and the next
+    // bound it: cdf[lo] <= k/n <= u and cdf[hi+1] >= cdf[guide[k+1]+1] > (k+1)/n > u, so
+    // the answer is the last index in [lo, hi] with cdf <= u, found by a branchless
+    // binary search (no mispredictions; skewed rows such as a sun stay logarithmic).
     const size_t n = m_func.size();
-    const size_t k = std::min(n - 1, size_t(std::max(0.0, u) * double(n)));
-    size_t lo = m_guide[k], hi = k + 1 < n ? std::min<size_t>(n - 1, m_guide[k + 1] + 1) : n - 1;
-    while (lo < hi) {  // first i in [lo, hi] with cdf[i+1] > u
-        size_t mid = (lo + hi) / 2;
-        if (m_cdf[mid + 1] <= u) lo = mid + 1;
-        else hi = mid;
+    u = std::clamp(u, 0.0, std::nextafter(1.0, 0.0));
+    const size_t k = std::min(n - 1, size_t(u * double(n)));
+    const size_t lo = m_guide[k], hi = k + 1 < n ? std::min<size_t>(n - 1, m_guide[k + 1] + 1) : n - 1;
+    const double *base = m_cdf.data() + lo;
+    for (size_t len = hi - lo + 1; len > 1;) {
+        size_t half = len / 2;
+        base = base[half] <= u ? base + half : base;
+        len -= half;
     }
-    size_t i = lo;
-    while (i > 0 && m_cdf[i + 1] - m_cdf[i] == 0.0) --i;
-    return i;
+    return size_t(base - m_cdf.data());
 }
 
 size_t Distribution1D::sample_discrete(float u, float *pmf_out, float *u_remapped) const {
