@@ -46,7 +46,6 @@ double trace_bare(const Scene &scene, const std::vector<Ray> &rays, int threads)
     auto t0 = std::chrono::steady_clock::now();
     tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 4096), [&](const tbb::blocked_range<size_t> &r) {
         int h = 0;
-        SurfaceInteraction si;
         for (size_t i = r.begin(); i < r.end(); ++i) h += scene.intersect_t(rays[i]) < Infinity;
         hits += h;
     });
@@ -101,7 +100,7 @@ int run_perf(const PerfArgs &a) {
     std::printf("%7s %14s %14s %14s %14s %8s\n", "threads", "bare primary", "bare incoh.", "path tracer", "bare-equiv", "ratio");
     double path_1 = 0;
     for (int t : a.threads) {
-        std::vector<double> tp, ts, tr, rays_v;
+        std::vector<double> tp, ts, tr;
         uint64_t rays = 0;
         for (int k = 0; k < a.repeats; ++k) {
             tp.push_back(trace_bare(*scene, primary, t));
