@@ -60,8 +60,19 @@ public:
     // The shape is final by now; rebuild in case it was bound before being transformed.
     void preprocess(Vec3, float) override { build(); }
 
+    /// Direction and distance from the reference point to p; false when they coincide.
+    static bool towards(const LightSampleContext &ctx, Vec3 p, LightSample &out, float &d2) {
+        Vec3 d = p - ctx.p;
+        d2 = length_squared(d);
+        if (!(d2 > 0.f)) return false;
+        out.dist = std::sqrt(d2);
+        out.wi = d / out.dist;
+        return true;
+    }
+
     bool sample(const LightSampleContext &ctx, Vec2 u, LightSample &out) const override {
         if (!m_shape || !(m_area > 0.f)) return false;
+        float d2;
         Vec3 p, n;
         float pdf;
         if (m_mesh) {
@@ -82,23 +93,13 @@ public:
             }
             p = p0 * float(b[0]) + p1 * float(b[1]) + p2 * float(b[2]);
             n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
-            Vec3 d = p - ctx.p;
-            float d2 = length_squared(d);
-            if (!(d2 > 0.f)) return false;
-            float dist = std::sqrt(d2);
-            out.wi = d / dist;
-            out.dist = dist;
+            if (!towards(ctx, p, out, d2)) return false;
             pdf = density(ctx, t, p0, p1, p2, spherical, n, out.wi, d2, pmf);
         } else {
             PositionSample ps = m_shape->sample_area(u.x, u);
             p = ps.p;
             n = ps.n;
-            Vec3 d = p - ctx.p;
-            float d2 = length_squared(d);
-            if (!(d2 > 0.f)) return false;
-            float dist = std::sqrt(d2);
-            out.wi = d / dist;
-            out.dist = dist;
+            if (!towards(ctx, p, out, d2)) return false;
             float cos_l = absdot(n, out.wi);
             pdf = cos_l > 0.f ? d2 / (cos_l * m_area) : 0.f;
         }

@@ -10,7 +10,7 @@ namespace meso {
 
 using json = nlohmann::json;
 
-static const char *json_type_name(const json &j) {
+const char *json_type_name(const json &j) {
     switch (j.type()) {
         case json::value_t::null: return "null";
         case json::value_t::object: return "an object";

@@ -35,6 +35,9 @@ struct LoadContext {
     std::set<std::string> building;  ///< names being built (cycle detection)
 };
 
+/// "an object", "a string", "an integer", ... for messages about what was found.
+const char *json_type_name(const nlohmann::json &j);
+
 class Properties {
 public:
     /// `path` is the JSON path of `obj` ("materials.gold", "shapes[2].material").

@@ -30,8 +30,8 @@ void Scene::build() {
         power.push_back(std::isfinite(p) && p > 0.f ? p : 0.f);
     }
     m_light_distr = std::make_unique<Distribution1D>(power);
-    m_light_pmf.resize(lights.size());
-    for (size_t i = 0; i < lights.size(); ++i) m_light_pmf[i] = m_light_distr->pmf(i);
+    m_light_pmf.clear();
+    for (size_t i = 0; i < lights.size(); ++i) m_light_pmf[lights[i].get()] = m_light_distr->pmf(i);
 }
 
 bool Scene::intersect(const Ray &ray, SurfaceInteraction &si) const { return m_accel->intersect(ray, si); }
@@ -48,9 +48,8 @@ const Light *Scene::sample_light(float u, float &pmf) const {
 }
 
 float Scene::light_pmf(const Light *light) const {
-    for (size_t i = 0; i < lights.size(); ++i)
-        if (lights[i].get() == light) return m_light_pmf[i];
-    return 0.f;
+    auto it = m_light_pmf.find(light);
+    return it == m_light_pmf.end() ? 0.f : it->second;
 }
 
 std::vector<std::string> Scene::plan() const {

@@ -2,6 +2,7 @@
 #pragma once
 #include <memory>
 #include <string>
+#include <unordered_map>
 #include <vector>
 #include "geometry/interaction.h"
 #include "render/camera.h"
@@ -46,7 +47,7 @@ public:
 private:
     std::unique_ptr<EmbreeAccel> m_accel;
     std::unique_ptr<Distribution1D> m_light_distr;
-    std::vector<float> m_light_pmf;
+    std::unordered_map<const Light *, float> m_light_pmf;  ///< per light, for MIS on emitter hits
     Vec3 m_bmin, m_bmax;
 };
 

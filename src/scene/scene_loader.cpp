@@ -31,17 +31,6 @@ namespace {
 
 const char *const kTopLevelKeys[] = {"camera", "integrator", "sampler", "textures", "materials", "shapes", "lights"};
 
-const char *type_name(const json &j) {
-    switch (j.type()) {
-        case json::value_t::null: return "null";
-        case json::value_t::object: return "an object";
-        case json::value_t::array: return "an array";
-        case json::value_t::string: return "a string";
-        case json::value_t::boolean: return "a boolean";
-        default: return "a number";
-    }
-}
-
 std::string read_file(const std::string &path) {
     std::error_code ec;
     if (fs::is_directory(path, ec)) throw MesoError(fmt::format("{}: cannot open the scene file (it is a directory)", path));
@@ -170,7 +159,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file) {
     DeclGuard guard{*ctx};
 
     if (!doc.is_object())
-        throw_located(file, "", fmt::format("expected a JSON object at the top level, got {}", type_name(doc)));
+        throw_located(file, "", fmt::format("expected a JSON object at the top level, got {}", json_type_name(doc)));
     for (auto it = doc.begin(); it != doc.end(); ++it) {
         bool ok = false;
         for (const char *k : kTopLevelKeys) ok = ok || it.key() == k;
@@ -180,7 +169,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file) {
         auto it = doc.find(section);
         if (it != doc.end() && !it->is_object())
             throw_located(file, section,
-                          fmt::format("expected an object mapping names to {}, got {}", section, type_name(*it)));
+                          fmt::format("expected an object mapping names to {}, got {}", section, json_type_name(*it)));
     }
     if (doc.contains("textures")) ctx->texture_decls = &doc["textures"];
     if (doc.contains("materials")) ctx->material_decls = &doc["materials"];
@@ -267,7 +256,7 @@ std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std
     }
     if (!overrides.empty()) {
         if (!doc.is_object())
-            throw_located(path, "", fmt::format("expected a JSON object at the top level, got {}", type_name(doc)));
+            throw_located(path, "", fmt::format("expected a JSON object at the top level, got {}", json_type_name(doc)));
         apply_overrides(doc, overrides);
     }
     return build_scene(doc, path);
