@@ -1,5 +1,8 @@
 #include "geometry/mesh.h"
+#include <array>
+#include <cmath>
 #include <fmt/format.h>
+#include <unordered_map>
 #include "core/error.h"
 
 namespace meso {
@@ -110,6 +113,62 @@ TriangleMesh make_uv_sphere(int rings, int segments) {
             if (r != rings - 1) m.indices.insert(m.indices.end(), {a + 1, b, b + 1});
         }
     return m;
+}
+
+std::vector<uint32_t> weld_vertices(const TriangleMesh &mesh) {
+    // Tolerance: 1e-6 of the largest bounding-box extent (uv-sphere seams and poles agree
+    // only up to the round-off of sin/cos). Vertices are binned on a grid of that size and
+    // compared with the 27 neighbouring bins.
+    const size_t n = mesh.vertex_count();
+    std::vector<uint32_t> weld(n);
+    if (n == 0) return weld;
+    Vec3 lo = mesh.positions[0], hi = lo;
+    for (const Vec3 &p : mesh.positions) lo = vmin(lo, p), hi = vmax(hi, p);
+    const double tol = std::max(1e-6 * double(max_component(hi - lo)), 1e-30);
+    auto cell = [&](float v, float l) { return int64_t(std::floor((double(v) - l) / tol)); };
+    struct Hash {
+        size_t operator()(const std::array<int64_t, 3> &k) const {
+            uint64_t h = uint64_t(k[0]) * 0x9E3779B97F4A7C15ull ^ uint64_t(k[1]) * 0xC2B2AE3D27D4EB4Full ^
+                         uint64_t(k[2]) * 0x165667B19E3779F9ull;
+            return size_t(h ^ (h >> 31));
+        }
+    };
+    std::unordered_map<std::array<int64_t, 3>, std::vector<uint32_t>, Hash> bins;
+    bins.reserve(n);
+    for (uint32_t i = 0; i < n; ++i) {
+        const Vec3 &p = mesh.positions[i];
+        const std::array<int64_t, 3> c = {cell(p.x, lo.x), cell(p.y, lo.y), cell(p.z, lo.z)};
+        uint32_t rep = i;
+        for (int dz = -1; dz <= 1 && rep == i; ++dz)
+            for (int dy = -1; dy <= 1 && rep == i; ++dy)
+                for (int dx = -1; dx <= 1 && rep == i; ++dx) {
+                    auto it = bins.find({c[0] + dx, c[1] + dy, c[2] + dz});
+                    if (it == bins.end()) continue;
+                    for (uint32_t j : it->second) {
+                        const Vec3 d = mesh.positions[j] - p;
+                        if (std::abs(d.x) <= tol && std::abs(d.y) <= tol && std::abs(d.z) <= tol) {
+                            rep = j;
+                            break;
+                        }
+                    }
+                }
+        weld[i] = rep;
+        if (rep == i) bins[c].push_back(i);
+    }
+    return weld;
+}
+
+std::vector<Vec3> vertex_normals(const TriangleMesh &mesh, const std::vector<uint32_t> &weld) {
+    std::vector<Vec3> acc(mesh.vertex_count());
+    for (size_t t = 0; t < mesh.triangle_count(); ++t) {
+        const uint32_t *v = &mesh.indices[3 * t];
+        Vec3 n = cross(mesh.positions[v[1]] - mesh.positions[v[0]], mesh.positions[v[2]] - mesh.positions[v[0]]);
+        if (!is_finite(n)) continue;
+        for (int k = 0; k < 3; ++k) acc[weld[v[k]]] += n;
+    }
+    std::vector<Vec3> out(mesh.vertex_count());
+    for (size_t i = 0; i < out.size(); ++i) out[i] = normalize(acc[weld[i]]);
+    return out;
 }
 
 }  // namespace meso

@@ -26,6 +26,15 @@ struct TriangleMesh {
     void validate(const std::string &where) const;
 };
 
+/// For each vertex, the index of the first vertex within 1e-6 of the mesh's largest
+/// bounding-box extent (per coordinate) — the representative all its copies share: welds
+/// the duplicates that uv seams, split normals and poles create, so topology code (shell
+/// prisms, subdivision) sees one vertex where the surface has one point.
+std::vector<uint32_t> weld_vertices(const TriangleMesh &mesh);
+/// Area-weighted (unnormalised cross product) vertex normals over the welded topology,
+/// normalised; every copy of a welded vertex gets the same normal.
+std::vector<Vec3> vertex_normals(const TriangleMesh &mesh, const std::vector<uint32_t> &weld);
+
 /// Procedural meshes (all in object space, before to_world).
 TriangleMesh make_rectangle();                 ///< [-1,1]^2 at z=0, normal +z, uv in [0,1]^2
 TriangleMesh make_cube();                      ///< [-1,1]^3, outward normals, per-face uv

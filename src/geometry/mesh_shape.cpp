@@ -1,6 +1,8 @@
 #include "geometry/mesh_shape.h"
 #include <fmt/format.h>
 #include "core/error.h"
+#include "geometry/shell_shape.h"
+#include "geometry/tessellate.h"
 #include "sampling/warp.h"
 #include "scene/properties.h"
 #include "scene/registry.h"
@@ -139,6 +141,12 @@ std::shared_ptr<Shape> make_mesh_shape(TriangleMesh mesh, const Properties &p, c
     if (p.get_bool("flip_normals", false)) {
         for (auto &n : mesh.normals) n = -n;
         for (size_t i = 0; i + 2 < mesh.indices.size(); i += 3) std::swap(mesh.indices[i + 1], mesh.indices[i + 2]);
+    }
+    if (auto dp = p.optional_child("displacement")) {
+        Displacement d = parse_displacement(*dp, p.context().max_triangles);
+        if (d.mode == DisplacementMode::Shell) return std::make_shared<ShellShape>(mesh, std::move(d), name);
+        TriangleMesh fine = tessellate_displaced(mesh, d, fmt::format("{}: {}", p.file(), p.path()));
+        return std::make_shared<MeshShape>(std::move(fine), fmt::format("{}, displaced by '{}' (tessellated)", name, d.source));
     }
     return std::make_shared<MeshShape>(std::move(mesh), name);
 }

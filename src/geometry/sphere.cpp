@@ -4,6 +4,7 @@
 //   radius        float  1        (> 0)
 //   flip_normals  bool   false    normals point inwards
 #include <fmt/format.h>
+#include "geometry/mesh_shape.h"
 #include "geometry/shape.h"
 #include "sampling/warp.h"
 #include "scene/properties.h"
@@ -74,9 +75,19 @@ private:
     bool m_flip;
 };
 
-MESO_REGISTER_SHAPE("sphere", "analytic sphere (center, radius, flip_normals)", [](const Properties &p) -> std::shared_ptr<Shape> {
+MESO_REGISTER_SHAPE("sphere", "analytic sphere (center, radius, flip_normals; with displacement: a uv sphere of rings x segments)", [](const Properties &p) -> std::shared_ptr<Shape> {
     float r = p.get_float("radius", 1.f);
     if (!(r > 0.f)) p.fail("radius", "expected a positive radius");
+    if (p.has("displacement")) {
+        // Displacement needs a mesh with uvs: the sphere becomes a uv sphere (same uv layout).
+        int rings = p.get_int("rings", 64), seg = p.get_int("segments", 128);
+        if (rings < 2 || seg < 3 || size_t(rings) * seg > (size_t(1) << 26))
+            p.fail("expected rings >= 2, segments >= 3, rings*segments <= 2^26");
+        TriangleMesh mesh = make_uv_sphere(rings, seg);
+        Vec3 c = p.get_vec3("center", Vec3());
+        for (Vec3 &v : mesh.positions) v = c + v * r;
+        return make_mesh_shape(std::move(mesh), p, p.path() + " (sphere as uv sphere)");
+    }
     return std::make_shared<SphereShape>(p.get_vec3("center", Vec3()), r, p.get_bool("flip_normals", false));
 });
 

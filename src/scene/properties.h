@@ -27,6 +27,7 @@ class Material;
 struct LoadContext {
     std::string file;      ///< scene file as given by the user (for messages)
     std::string base_dir;  ///< directory relative paths resolve against
+    size_t max_triangles = 0;  ///< limit for explicit tessellation (0: the default; --max-triangles)
     std::map<std::string, std::shared_ptr<Texture>> textures;
     std::map<std::string, std::shared_ptr<Material>> materials;
     /// Declarations not yet built (built on first reference, so unused ones cost nothing).

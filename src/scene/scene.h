@@ -53,6 +53,8 @@ private:
 
 /// Loads a JSON scene or a .gltf file. `overrides` are "json.path=value" strings (-D).
 /// Errors: MesoError("file: json.path: what was expected").
-std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std::string> &overrides);
+/// `max_triangles` limits explicitly tessellated displacement (0: kDefaultMaxTriangles).
+std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std::string> &overrides,
+                                  size_t max_triangles = 0);
 
 }  // namespace meso

@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "geometry/shape.h"
+#include "geometry/shell_shape.h"
 #include "render/light.h"
 #include "render/material.h"
 #include "scene/gltf.h"
@@ -152,8 +153,9 @@ struct DeclGuard {
     }
 };
 
-std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file) {
+std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, size_t max_triangles) {
     auto ctx = std::make_shared<LoadContext>();
+    ctx->max_triangles = max_triangles;
     ctx->file = file;
     ctx->base_dir = fs::path(file).parent_path().string();
     DeclGuard guard{*ctx};
@@ -220,6 +222,9 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file) {
             }
             std::shared_ptr<Shape> shape = create_shape(p);
             shape->material = material;
+            if (emitter && dynamic_cast<const ShellShape *>(shape.get()))
+                p.fail("emitter", "a shell-mapped displaced shape cannot be an area emitter (use \"mode\": \"tessellate\" "
+                                  "or an undisplaced emitter)");
             if (emitter) {
                 emitter->set_shape(shape.get());
                 shape->emitter = emitter;
@@ -246,7 +251,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file) {
 
 }  // namespace
 
-std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std::string> &overrides) {
+std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std::string> &overrides, size_t max_triangles) {
     GltfCacheScope cache;  // shapes of one glTF file parse it once
     json doc;
     if (is_gltf_path(path)) {
@@ -259,7 +264,7 @@ std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std
             throw_located(path, "", fmt::format("expected a JSON object at the top level, got {}", json_type_name(doc)));
         apply_overrides(doc, overrides);
     }
-    return build_scene(doc, path);
+    return build_scene(doc, path, max_triangles);
 }
 
 }  // namespace meso

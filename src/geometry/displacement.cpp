@@ -1,0 +1,106 @@
+#include "geometry/displacement.h"
+#include <cmath>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include "core/error.h"
+#include "geometry/heightmap_gen.h"
+#include "scene/properties.h"
+
+namespace meso {
+
+namespace {
+
+/// A generator's parameters from a JSON object: numbers and strings as text, [r,g,b]
+/// arrays as "r,g,b", "image" resolved against the scene file's directory.
+std::map<std::string, std::string> generator_params(const Properties &g) {
+    std::map<std::string, std::string> params;
+    for (const std::string &key : g.keys()) {
+        if (key == "generator") continue;
+        const nlohmann::json &v = g.raw(key);
+        if (key == "image") {
+            params[key] = g.get_file(key);
+        } else if (v.is_number()) {
+            params[key] = v.dump();
+        } else if (v.is_string()) {
+            params[key] = v.get<std::string>();
+        } else if (v.is_array()) {
+            std::string s;
+            for (const auto &e : v) {
+                if (!e.is_number()) g.fail(key, fmt::format("expected an array of numbers, got {}", json_type_name(e)));
+                s += (s.empty() ? "" : ",") + e.dump();
+            }
+            params[key] = s;
+        } else {
+            g.fail(key, fmt::format("expected a number, a string or an array of numbers, got {}", json_type_name(v)));
+        }
+    }
+    return params;
+}
+
+}  // namespace
+
+Displacement parse_displacement(const Properties &p, size_t max_triangles) {
+    Displacement d;
+    d.max_triangles = max_triangles ? max_triangles : kDefaultMaxTriangles;
+    if (!p.has("map"))
+        p.fail("expected a \"map\": a height-map file (EXR, 16-bit PNG/TIFF) or {\"generator\": \"fbm\", ...}");
+    HeightMap map;
+    const nlohmann::json &m = p.raw("map");
+    if (m.is_string()) {
+        std::string file = p.get_file("map");
+        try {
+            map = read_height_map(file);
+        } catch (const MesoError &e) {
+            p.fail("map", e.what());
+        }
+        d.source = file;
+    } else if (m.is_object()) {
+        Properties g = p.child("map");
+        std::string kind = g.get_string("generator");
+        std::map<std::string, std::string> params = generator_params(g);
+        map = generate_height_map(kind, params, fmt::format("{}: {}", g.file(), g.path())).height;
+        d.source = "generator " + kind;
+    } else {
+        p.fail("map", fmt::format("expected a file name or a generator object, got {}", json_type_name(m)));
+    }
+
+    const float scale = p.get_float("scale", 1.f), offset = p.get_float("offset", 0.f);
+    if (!std::isfinite(scale)) p.fail("scale", "expected a finite number (world units per map unit)");
+    if (!std::isfinite(offset)) p.fail("offset", "expected a finite number (world units)");
+    if (p.has("tiling")) {
+        const nlohmann::json &t = p.raw("tiling");
+        if (t.is_number()) {
+            d.tiling_u = d.tiling_v = p.get_float("tiling");
+        } else {
+            std::vector<float> tv = p.get_floats("tiling");
+            if (tv.size() != 2) p.fail("tiling", "expected a number or [repeats_u, repeats_v]");
+            d.tiling_u = tv[0], d.tiling_v = tv[1];
+        }
+        for (float v : {d.tiling_u, d.tiling_v})
+            if (!(v > 0.f) || !(v <= 1e6f)) p.fail("tiling", fmt::format("expected repeat counts in (0, 1e6], got {}", v));
+    }
+    std::string mode = p.get_string("mode", "shell");
+    if (mode == "shell") d.mode = DisplacementMode::Shell;
+    else if (mode == "tessellate") d.mode = DisplacementMode::Tessellate;
+    else p.fail("mode", fmt::format("expected \"shell\" or \"tessellate\", got \"{}\"", mode));
+    if (d.mode == DisplacementMode::Shell) {
+        for (const char *k : {"scheme", "level"})
+            if (p.has(k)) p.fail(k, "only applies to \"mode\": \"tessellate\"");
+    } else {
+        std::string scheme = p.get_string("scheme", "bilinear");
+        if (scheme == "bilinear") d.scheme = SubdivScheme::Bilinear;
+        else if (scheme == "catmull-clark") d.scheme = SubdivScheme::CatmullClark;
+        else p.fail("scheme", fmt::format("expected \"bilinear\" or \"catmull-clark\", got \"{}\"", scheme));
+        d.level = p.get_int("level", -1);
+        if (d.level < -1 || d.level > 15) p.fail("level", fmt::format("expected -1 (automatic) or 0..15, got {}", d.level));
+    }
+    try {
+        d.field = std::make_shared<Heightfield>(map, scale, offset);
+    } catch (const MesoError &e) {
+        p.fail("map", e.what());
+    }
+    p.check_unused("displacement");
+    return d;
+}
+
+}  // namespace meso

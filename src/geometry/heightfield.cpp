@@ -1,0 +1,287 @@
+#include "geometry/heightfield.h"
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+#include "core/error.h"
+
+namespace meso {
+
+namespace {
+
+inline int64_t wrap_index(int64_t i, int n) {
+    int64_t a = i % n;
+    return a < 0 ? a + n : a;
+}
+
+/// floor() as an integer, exact for the cell-space magnitudes meso uses.
+inline int64_t ifloor(double x) { return int64_t(std::floor(x)); }
+
+/// 1/d with zero components replaced by a tiny value of the same sign (slab tests then
+/// give +-huge instead of NaN for rays parallel to a slab).
+inline float safe_inv(float d) {
+    const float tiny = 1e-30f;
+    return 1.f / (std::abs(d) > tiny ? d : std::copysign(tiny, d));
+}
+
+}  // namespace
+
+Heightfield::Heightfield(const HeightMap &map, float scale, float offset) {
+    if (map.width < 1 || map.height < 1 || map.h.size() != size_t(map.width) * map.height)
+        throw MesoError(fmt::format("height map has an invalid size {}x{}", map.width, map.height));
+    if (!std::isfinite(scale) || !std::isfinite(offset))
+        throw MesoError("height map scale and offset must be finite");
+    m_w = map.width;
+    m_h = map.height;
+    m_heights.resize(map.h.size());
+    m_min = Infinity;
+    m_max = -Infinity;
+    for (size_t i = 0; i < map.h.size(); ++i) {
+        float v = offset + scale * map.h[i];
+        if (!std::isfinite(v)) throw MesoError("height map has a non-finite value (after scale and offset)");
+        m_heights[i] = v;
+        m_min = std::min(m_min, v);
+        m_max = std::max(m_max, v);
+    }
+    // Level 0: one node per cell, min/max of its four corners (wrapping).
+    Level l0;
+    l0.w = m_w;
+    l0.h = m_h;
+    l0.minmax.resize(size_t(m_w) * m_h * 2);
+    for (int j = 0; j < m_h; ++j) {
+        int j1 = j + 1 == m_h ? 0 : j + 1;
+        for (int i = 0; i < m_w; ++i) {
+            int i1 = i + 1 == m_w ? 0 : i + 1;
+            float a = m_heights[size_t(j) * m_w + i], b = m_heights[size_t(j) * m_w + i1];
+            float c = m_heights[size_t(j1) * m_w + i], d = m_heights[size_t(j1) * m_w + i1];
+            l0.minmax[(size_t(j) * m_w + i) * 2] = std::min(std::min(a, b), std::min(c, d));
+            l0.minmax[(size_t(j) * m_w + i) * 2 + 1] = std::max(std::max(a, b), std::max(c, d));
+        }
+    }
+    m_levels.push_back(std::move(l0));
+    // Level k+1: node (i, j) covers children (2i..2i+1, 2j..2j+1) of level k that exist.
+    while (m_levels.back().w > 1 || m_levels.back().h > 1) {
+        const Level &c = m_levels.back();
+        Level n;
+        n.w = (c.w + 1) / 2;
+        n.h = (c.h + 1) / 2;
+        n.minmax.resize(size_t(n.w) * n.h * 2);
+        for (int j = 0; j < n.h; ++j)
+            for (int i = 0; i < n.w; ++i) {
+                float mn = Infinity, mx = -Infinity;
+                for (int dj = 0; dj < 2; ++dj)
+                    for (int di = 0; di < 2; ++di) {
+                        int ci = 2 * i + di, cj = 2 * j + dj;
+                        if (ci >= c.w || cj >= c.h) continue;
+                        mn = std::min(mn, c.minmax[(size_t(cj) * c.w + ci) * 2]);
+                        mx = std::max(mx, c.minmax[(size_t(cj) * c.w + ci) * 2 + 1]);
+                    }
+                n.minmax[(size_t(j) * n.w + i) * 2] = mn;
+                n.minmax[(size_t(j) * n.w + i) * 2 + 1] = mx;
+            }
+        m_levels.push_back(std::move(n));
+    }
+}
+
+float Heightfield::vertex(int64_t i, int64_t j) const {
+    return m_heights[size_t(wrap_index(j, m_h)) * m_w + size_t(wrap_index(i, m_w))];
+}
+
+float Heightfield::eval(double x, double y) const {
+    float dx, dy;
+    return eval(x, y, dx, dy);
+}
+
+float Heightfield::eval(double x, double y, float &dhdx, float &dhdy) const {
+    int64_t i = ifloor(x), j = ifloor(y);
+    float a = float(x - double(i)), b = float(y - double(j));
+    float h00 = vertex(i, j), h10 = vertex(i + 1, j), h01 = vertex(i, j + 1), h11 = vertex(i + 1, j + 1);
+    // Paper 004, Appendix A: the slopes of the bilinear patch.
+    float g = h00 + h11 - h10 - h01;
+    dhdx = h10 - h00 + b * g;
+    dhdy = h01 - h00 + a * g;
+    return h00 + a * (h10 - h00) + b * (h01 - h00) + a * b * g;
+}
+
+size_t Heightfield::memory_bytes() const {
+    size_t bytes = m_heights.size() * sizeof(float);
+    for (const Level &l : m_levels) bytes += l.minmax.size() * sizeof(float);
+    return bytes;
+}
+
+bool intersect_bilinear_patch(Vec3 o, Vec3 d, float h00, float h10, float h01, float h11, float t0, float t1,
+                              float &t_hit) {
+    if (!(t1 >= t0)) return false;
+    // Re-base the ray at t0 so the quadratic works with small numbers: s = t - t0.
+    const double ox = double(o.x) + double(t0) * d.x, oy = double(o.y) + double(t0) * d.y,
+                 oh = double(o.z) + double(t0) * d.z;
+    const double dx = d.x, dy = d.y, dh = d.z;
+    const double e = double(h10) - h00, f = double(h01) - h00, g = double(h00) + h11 - h10 - h01;
+    // F(s) = ray height - patch height = A s^2 + B s + C.
+    const double A = -g * dx * dy;
+    const double B = dh - e * dx - f * dy - g * (ox * dy + oy * dx);
+    const double C = oh - h00 - e * ox - f * oy - g * ox * oy;
+    const double smax = double(t1) - double(t0);
+    auto F = [&](double s) { return (A * s + B) * s + C; };
+
+    double roots[2];
+    int n = 0;
+    const double scale = std::abs(B) + std::abs(C) + 1e-300;
+    if (std::abs(A) * std::max(smax, 1.0) <= 1e-12 * scale) {
+        if (B != 0.0) roots[n++] = -C / B;
+    } else {
+        double disc = B * B - 4 * A * C;
+        if (disc >= 0) {
+            double q = -0.5 * (B + std::copysign(std::sqrt(disc), B));
+            double r0 = q / A, r1 = q != 0.0 ? C / q : r0;
+            roots[n++] = std::min(r0, r1);
+            roots[n++] = std::max(r0, r1);
+        }
+    }
+    for (int k = 0; k < n; ++k)
+        if (roots[k] >= 0.0 && roots[k] <= smax) {
+            t_hit = float(double(t0) + roots[k]);
+            return true;
+        }
+    // Round-off guard: a sign change of F over [0, smax] is a crossing the closed form
+    // missed (roots a hair outside the interval). Take the root nearest the interval.
+    const double f0 = F(0.0), f1 = F(smax);
+    if ((f0 <= 0.0 && f1 >= 0.0) || (f0 >= 0.0 && f1 <= 0.0)) {
+        double best = 0.0, dist = Infinity;
+        for (int k = 0; k < n; ++k) {
+            double dd = roots[k] < 0.0 ? -roots[k] : roots[k] - smax;
+            if (dd < dist) dist = dd, best = std::clamp(roots[k], 0.0, smax);
+        }
+        if (n == 0) best = f0 == 0.0 ? 0.0 : smax;
+        t_hit = float(double(t0) + best);
+        return true;
+    }
+    return false;
+}
+
+bool Heightfield::intersect(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit &hit, int64_t ox,
+                            int64_t oy) const {
+    return traverse<false>(o, d, tmin, tmax, &hit, ox, oy);
+}
+
+bool Heightfield::occluded(Vec3 o, Vec3 d, float tmin, float tmax, int64_t ox, int64_t oy) const {
+    return traverse<true>(o, d, tmin, tmax, nullptr, ox, oy);
+}
+
+template <bool AnyHit>
+bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit *hit, int64_t ox,
+                           int64_t oy) const {
+    if (m_levels.empty() || !(tmax > tmin)) return false;
+    const float inv[3] = {safe_inv(d.x), safe_inv(d.y), safe_inv(d.z)};
+    // Clip to the height slab of the whole field.
+    {
+        float ta = (m_min - o.z) * inv[2], tb = (m_max - o.z) * inv[2];
+        if (ta > tb) std::swap(ta, tb);
+        // Slightly widened: a ray grazing the top of the field must still reach the leaves.
+        float pad = 1e-6f * (std::abs(ta) + std::abs(tb)) + 1e-30f;
+        tmin = std::max(tmin, ta - pad);
+        tmax = std::min(tmax, tb + pad);
+        if (!(tmax >= tmin)) return false;
+    }
+    // Tiles crossed by the ray between tmin and tmax (2D DDA on the W x H tile grid). Work
+    // in double for the tile walk: the offsets may be large.
+    const double px = double(o.x) + double(ox), py = double(o.y) + double(oy);
+    const double W = m_w, H = m_h;
+    double sx = px + double(tmin) * d.x, sy = py + double(tmin) * d.y;
+    int64_t tx = ifloor(sx / W), ty = ifloor(sy / H);
+    const int stepx = d.x > 0 ? 1 : -1, stepy = d.y > 0 ? 1 : -1;
+    auto next_t = [&](int64_t tile, int step, double p0, double dir, double size) {
+        if (dir == 0.0) return double(Infinity);
+        double boundary = double(tile + (step > 0 ? 1 : 0)) * size;
+        return (boundary - p0) / dir;
+    };
+    double tnx = next_t(tx, stepx, px, d.x, W), tny = next_t(ty, stepy, py, d.y, H);
+    const int top = int(m_levels.size()) - 1;
+    const int child_mask = (d.x < 0 ? 1 : 0) | (d.y < 0 ? 2 : 0);
+    const float eps_t = 1e-5f;  // relative widening of leaf intervals (watertight cell seams)
+
+    double t_tile0 = tmin;
+    for (int guard = 0; guard < (1 << 22); ++guard) {
+        const double t_tile1 = std::min(double(tmax), std::min(tnx, tny));
+        // Tile origin in the caller's (small) coordinates.
+        const float tile_x = float(double(tx) * W - double(ox)), tile_y = float(double(ty) * H - double(oy));
+        const float seg0 = float(t_tile0), seg1 = float(t_tile1);
+        const float pad_tile = eps_t * (std::abs(seg0) + std::abs(seg1)) + 1e-30f;
+        struct Node {
+            int level, i, j;
+        };
+        Node stack[96];
+        int sp = 0;
+        stack[sp++] = {top, 0, 0};
+        while (sp > 0) {
+            const Node nd = stack[--sp];
+            const Level &L = m_levels[nd.level];
+            const float *mm = &L.minmax[(size_t(nd.j) * L.w + nd.i) * 2];
+            const int span = 1 << nd.level;
+            const float x0 = tile_x + float(nd.i * span), x1 = tile_x + float(std::min((nd.i + 1) * span, m_w));
+            const float y0 = tile_y + float(nd.j * span), y1 = tile_y + float(std::min((nd.j + 1) * span, m_h));
+            float ta = (x0 - o.x) * inv[0], tb = (x1 - o.x) * inv[0];
+            if (ta > tb) std::swap(ta, tb);
+            float tc = (y0 - o.y) * inv[1], td = (y1 - o.y) * inv[1];
+            if (tc > td) std::swap(tc, td);
+            float te = (mm[0] - o.z) * inv[2], tf = (mm[1] - o.z) * inv[2];
+            if (te > tf) std::swap(te, tf);
+            // The pad is relative to the node's own entry and exit, not to the slab values:
+            // a ray (nearly) parallel to x or y has slab values of up to +-1e30 for the
+            // other axis, which would otherwise widen every interval without bound (then
+            // every node passed, and the leaves returned roots of extended patches outside
+            // their cells: hits off the surface).
+            const float xy_near = std::max(ta, tc), xy_far = std::min(tb, td);
+            const float pad = eps_t * std::max(std::abs(std::max(std::max(xy_near, te), seg0)),
+                                               std::abs(std::min(std::min(xy_far, tf), seg1))) + 1e-30f;
+            const float t_near = std::max(xy_near - pad, std::max(te - pad, seg0 - pad_tile));
+            const float t_far = std::min(xy_far + pad, std::min(tf + pad, seg1 + pad_tile));
+            if (!(t_near <= t_far) || t_far < tmin || t_near > tmax) continue;
+            if (nd.level == 0) {
+                const int i1 = nd.i + 1 == m_w ? 0 : nd.i + 1, j1 = nd.j + 1 == m_h ? 0 : nd.j + 1;
+                const float h00 = m_heights[size_t(nd.j) * m_w + nd.i], h10 = m_heights[size_t(nd.j) * m_w + i1];
+                const float h01 = m_heights[size_t(j1) * m_w + nd.i], h11 = m_heights[size_t(j1) * m_w + i1];
+                const Vec3 local(o.x - x0, o.y - y0, o.z);
+                float th;
+                const float s0 = std::max(xy_near - pad, tmin), s1 = std::min(xy_far + pad, tmax);
+                if (!intersect_bilinear_patch(local, d, h00, h10, h01, h11, s0, s1, th)) continue;
+                if (!(th > tmin) || th > tmax) continue;
+                if constexpr (AnyHit) {
+                    return true;
+                } else {
+                    // Local patch coordinates of the hit, clamped into the cell.
+                    const float a = std::clamp(local.x + th * d.x, 0.f, 1.f), b = std::clamp(local.y + th * d.y, 0.f, 1.f);
+                    const float g = h00 + h11 - h10 - h01;
+                    hit->t = th;
+                    hit->x = x0 + a;
+                    hit->y = y0 + b;
+                    hit->h = h00 + a * (h10 - h00) + b * (h01 - h00) + a * b * g;
+                    hit->dhdx = h10 - h00 + b * g;
+                    hit->dhdy = h01 - h00 + a * g;
+                    return true;
+                }
+            }
+            // Children pushed back to front, so the one the ray enters first is popped first.
+            for (int k = 3; k >= 0; --k) {
+                const int c = k ^ child_mask;
+                const int ci = 2 * nd.i + (c & 1), cj = 2 * nd.j + (c >> 1);
+                const Level &C = m_levels[nd.level - 1];
+                if (ci < C.w && cj < C.h) stack[sp++] = {nd.level - 1, ci, cj};
+            }
+        }
+        if (t_tile1 >= double(tmax)) break;
+        t_tile0 = t_tile1;
+        if (tnx < tny) {
+            tx += stepx;
+            tnx = next_t(tx, stepx, px, d.x, W);
+        } else {
+            ty += stepy;
+            tny = next_t(ty, stepy, py, d.y, H);
+        }
+    }
+    return false;
+}
+
+template bool Heightfield::traverse<false>(Vec3, Vec3, float, float, HeightfieldHit *, int64_t, int64_t) const;
+template bool Heightfield::traverse<true>(Vec3, Vec3, float, float, HeightfieldHit *, int64_t, int64_t) const;
+
+}  // namespace meso

@@ -1,0 +1,367 @@
+#include "geometry/shell_shape.h"
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <fmt/format.h>
+#include "core/error.h"
+#include "sampling/warp.h"
+
+namespace meso {
+
+namespace {
+
+using Mat3d = std::array<double, 9>;  // row-major
+
+bool invert3(const Mat3d &m, Mat3d &inv, double &det) {
+    det = m[0] * (m[4] * m[8] - m[5] * m[7]) - m[1] * (m[3] * m[8] - m[5] * m[6]) + m[2] * (m[3] * m[7] - m[4] * m[6]);
+    if (!(std::abs(det) > 0.0) || !std::isfinite(det)) return false;
+    double id = 1.0 / det;
+    inv[0] = (m[4] * m[8] - m[5] * m[7]) * id;
+    inv[1] = (m[2] * m[7] - m[1] * m[8]) * id;
+    inv[2] = (m[1] * m[5] - m[2] * m[4]) * id;
+    inv[3] = (m[5] * m[6] - m[3] * m[8]) * id;
+    inv[4] = (m[0] * m[8] - m[2] * m[6]) * id;
+    inv[5] = (m[2] * m[3] - m[0] * m[5]) * id;
+    inv[6] = (m[3] * m[7] - m[4] * m[6]) * id;
+    inv[7] = (m[1] * m[6] - m[0] * m[7]) * id;
+    inv[8] = (m[0] * m[4] - m[1] * m[3]) * id;
+    return true;
+}
+
+/// Matrix whose columns are the three edges v[1..3] - v[0].
+Mat3d edge_matrix(const double v[4][3]) {
+    Mat3d m;
+    for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) m[r * 3 + c] = v[c + 1][r] - v[0][r];
+    return m;
+}
+
+inline Vec3 mul3(const float *M, Vec3 v) {
+    return Vec3(M[0] * v.x + M[1] * v.y + M[2] * v.z, M[3] * v.x + M[4] * v.y + M[5] * v.z,
+                M[6] * v.x + M[7] * v.y + M[8] * v.z);
+}
+inline Vec3 mul3T(const float *M, Vec3 v) {
+    return Vec3(M[0] * v.x + M[3] * v.y + M[6] * v.z, M[1] * v.x + M[4] * v.y + M[7] * v.z,
+                M[2] * v.x + M[5] * v.y + M[8] * v.z);
+}
+
+void bounds_cb(const RTCBoundsFunctionArguments *args) {
+    auto *s = static_cast<const ShellShape *>(args->geometryUserPtr);
+    float lo[3], hi[3];
+    s->prism_bounds(args->primID, lo, hi);
+    RTCBounds *b = args->bounds_o;
+    b->lower_x = lo[0], b->lower_y = lo[1], b->lower_z = lo[2];
+    b->upper_x = hi[0], b->upper_y = hi[1], b->upper_z = hi[2];
+}
+
+void intersect_cb(const RTCIntersectFunctionNArguments *args) {
+    auto *s = static_cast<const ShellShape *>(args->geometryUserPtr);
+    RTCRayN *ray = RTCRayHitN_RayN(args->rayhit, args->N);
+    RTCHitN *hit = RTCRayHitN_HitN(args->rayhit, args->N);
+    for (unsigned i = 0; i < args->N; ++i) {
+        if (!args->valid[i]) continue;
+        Vec3 o(RTCRayN_org_x(ray, args->N, i), RTCRayN_org_y(ray, args->N, i), RTCRayN_org_z(ray, args->N, i));
+        Vec3 d(RTCRayN_dir_x(ray, args->N, i), RTCRayN_dir_y(ray, args->N, i), RTCRayN_dir_z(ray, args->N, i));
+        float &tfar = RTCRayN_tfar(ray, args->N, i);
+        uint32_t tet;
+        float x, y;
+        if (s->intersect_prism(args->primID, o, d, RTCRayN_tnear(ray, args->N, i), tfar, tet, x, y)) {
+            RTCHitN_u(hit, args->N, i) = x;
+            RTCHitN_v(hit, args->N, i) = y;
+            RTCHitN_Ng_x(hit, args->N, i) = 0.f;  // rebuilt by fill_interaction
+            RTCHitN_Ng_y(hit, args->N, i) = 0.f;
+            RTCHitN_Ng_z(hit, args->N, i) = 1.f;
+            RTCHitN_primID(hit, args->N, i) = tet;
+            RTCHitN_geomID(hit, args->N, i) = args->geomID;
+            RTCHitN_instID(hit, args->N, i, 0) = args->context->instID[0];
+        }
+    }
+}
+
+void occluded_cb(const RTCOccludedFunctionNArguments *args) {
+    auto *s = static_cast<const ShellShape *>(args->geometryUserPtr);
+    for (unsigned i = 0; i < args->N; ++i) {
+        if (!args->valid[i]) continue;
+        RTCRayN *ray = args->ray;
+        Vec3 o(RTCRayN_org_x(ray, args->N, i), RTCRayN_org_y(ray, args->N, i), RTCRayN_org_z(ray, args->N, i));
+        Vec3 d(RTCRayN_dir_x(ray, args->N, i), RTCRayN_dir_y(ray, args->N, i), RTCRayN_dir_z(ray, args->N, i));
+        float &tfar = RTCRayN_tfar(ray, args->N, i);
+        if (s->occluded_prism(args->primID, o, d, RTCRayN_tnear(ray, args->N, i), tfar)) tfar = -Infinity;
+    }
+}
+
+}  // namespace
+
+ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string name)
+    : m_disp(std::move(disp)), m_base(base), m_name(std::move(name)) {
+    m_base.validate(m_name);
+    if (m_base.uvs.empty()) throw MesoError(fmt::format("{}: displacement needs uv coordinates on the mesh", m_name));
+    if (!m_disp.field) throw MesoError(fmt::format("{}: displacement without a height map", m_name));
+    const std::vector<uint32_t> weld = weld_vertices(m_base);
+    if (m_base.normals.empty()) m_base.normals = vertex_normals(m_base, weld);
+    for (Vec3 &n : m_base.normals) n = normalize(n);
+    // Welded copies share one position, and one normal where they agree up to round-off
+    // (a uv seam), so prisms meeting there have bitwise the same shell vertices. Copies
+    // with different normals (hard edges) keep theirs: the shell opens there, as the
+    // tessellation does (documented).
+    for (size_t i = 0; i < m_base.vertex_count(); ++i) {
+        m_base.positions[i] = m_base.positions[weld[i]];
+        if (dot(m_base.normals[i], m_base.normals[weld[i]]) > 1.f - 1e-5f) m_base.normals[i] = m_base.normals[weld[i]];
+    }
+    const size_t ntri = m_base.triangle_count();
+
+    // Shell heights: the field's range, padded so a flat field still has a volume.
+    double edge_sum = 0;
+    for (size_t t = 0; t < ntri; ++t)
+        edge_sum += length(m_base.positions[m_base.indices[3 * t + 1]] - m_base.positions[m_base.indices[3 * t]]);
+    const double mean_edge = ntri ? edge_sum / double(ntri) : 1.0;
+    const double thick = double(m_disp.field->max_height()) - m_disp.field->min_height();
+    const double pad = std::max({1e-3 * thick, 1e-4 * mean_edge, 1e-12});
+    m_hmin = float(m_disp.field->min_height() - pad);
+    m_hmax = float(m_disp.field->max_height() + pad);
+
+    std::vector<float> areas;
+    m_prisms.reserve(ntri);
+    const double cw = double(m_disp.field->width()) * m_disp.tiling_u, ch = double(m_disp.field->height()) * m_disp.tiling_v;
+    for (size_t t = 0; t < ntri; ++t) {
+        uint32_t v[3] = {m_base.indices[3 * t], m_base.indices[3 * t + 1], m_base.indices[3 * t + 2]};
+        // Order by welded index: the diagonal rule then depends on shared edges only.
+        std::sort(v, v + 3, [&](uint32_t a, uint32_t b) { return weld[a] < weld[b]; });
+        if (weld[v[0]] == weld[v[1]] || weld[v[1]] == weld[v[2]]) continue;  // zero-area triangle
+        float area = m_base.triangle_area(t);
+        if (!(area > 0.f) || !std::isfinite(area)) continue;
+        Prism P;
+        double cx[3], cy[3];
+        for (int k = 0; k < 3; ++k) cx[k] = m_base.uvs[v[k]].x * cw, cy[k] = m_base.uvs[v[k]].y * ch;
+        P.ox = int64_t(std::floor(std::min({cx[0], cx[1], cx[2]})));
+        P.oy = int64_t(std::floor(std::min({cy[0], cy[1], cy[2]})));
+        // Vertices 0..2 bottom (a b c), 3..5 top (a' b' c').
+        double wv[6][3], tv[6][3];
+        for (int k = 0; k < 6; ++k) {
+            uint32_t vi = v[k % 3];
+            double h = k < 3 ? m_hmin : m_hmax;
+            Vec3 pw = m_base.positions[vi] + m_base.normals[vi] * float(h);  // same floats for shared vertices
+            wv[k][0] = pw.x, wv[k][1] = pw.y, wv[k][2] = pw.z;
+            tv[k][0] = cx[k % 3] - double(P.ox), tv[k][1] = cy[k % 3] - double(P.oy), tv[k][2] = h;
+        }
+        static const int kTets[3][4] = {{0, 1, 2, 3}, {1, 2, 3, 4}, {2, 3, 4, 5}};
+        double max_edge = 0;
+        for (int a = 0; a < 6; ++a)
+            for (int b = a + 1; b < 6; ++b) {
+                double e = std::sqrt(sqr(wv[a][0] - wv[b][0]) + sqr(wv[a][1] - wv[b][1]) + sqr(wv[a][2] - wv[b][2]));
+                max_edge = std::max(max_edge, e);
+            }
+        for (int k = 0; k < 3; ++k) {
+            double W[4][3], T[4][3];
+            for (int q = 0; q < 4; ++q)
+                for (int c = 0; c < 3; ++c) W[q][c] = wv[kTets[k][q]][c], T[q][c] = tv[kTets[k][q]][c];
+            Mat3d E = edge_matrix(W), Binv, TM = edge_matrix(T);
+            double det;
+            if (!invert3(E, Binv, det) || std::abs(det) < 1e-9 * max_edge * max_edge * max_edge) continue;
+            Tet &tt = P.tet[k];
+            for (int c = 0; c < 3; ++c) tt.w0[c] = float(W[0][c]), tt.t0[c] = float(T[0][c]);
+            for (int i = 0; i < 9; ++i) tt.B[i] = float(Binv[i]);
+            for (int r = 0; r < 3; ++r)
+                for (int c = 0; c < 3; ++c)
+                    tt.A[r * 3 + c] = float(TM[r * 3 + 0] * Binv[0 * 3 + c] + TM[r * 3 + 1] * Binv[1 * 3 + c] +
+                                            TM[r * 3 + 2] * Binv[2 * 3 + c]);
+            P.valid |= uint8_t(1u << k);
+        }
+        if (!P.valid) continue;
+        m_prisms.push_back(P);
+        m_prism_tri.push_back(uint32_t(t));
+        areas.push_back(area);
+        m_base_area += area;
+    }
+    if (m_prisms.empty()) throw MesoError(fmt::format("{}: the displaced mesh has no triangle with an area", m_name));
+    m_area_distr = Distribution1D(areas);
+}
+
+void ShellShape::prism_bounds(uint32_t prism, float lo[3], float hi[3]) const {
+    const uint32_t t = m_prism_tri[prism];
+    Vec3 l(Infinity, Infinity, Infinity), h(-Infinity, -Infinity, -Infinity);
+    for (int k = 0; k < 3; ++k) {
+        uint32_t vi = m_base.indices[3 * t + k];
+        Vec3 a = m_base.positions[vi] + m_base.normals[vi] * m_hmin, b = m_base.positions[vi] + m_base.normals[vi] * m_hmax;
+        l = vmin(l, vmin(a, b));
+        h = vmax(h, vmax(a, b));
+    }
+    // Padded by the relative size the tetrahedron clip is padded by.
+    Vec3 pad = (h - l) * 1e-4f + vabs(l) * 1e-6f + Vec3(1e-20f, 1e-20f, 1e-20f);
+    l -= pad;
+    h += pad;
+    lo[0] = l.x, lo[1] = l.y, lo[2] = l.z;
+    hi[0] = h.x, hi[1] = h.y, hi[2] = h.z;
+}
+
+bool ShellShape::clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1) {
+    // Barycentric coordinates along the ray: lambda_k(t) = n_k + t s_k (k = 1..3) and
+    // lambda_0 = 1 - sum. In double: o may be far from the tetrahedron.
+    const double r[3] = {double(o.x) - T.w0[0], double(o.y) - T.w0[1], double(o.z) - T.w0[2]};
+    double n[4], s[4];
+    n[0] = 1.0, s[0] = 0.0;
+    double nmax = 1.0;
+    for (int k = 0; k < 3; ++k) {
+        const float *b = &T.B[3 * k];
+        n[k + 1] = b[0] * r[0] + b[1] * r[1] + b[2] * r[2];
+        s[k + 1] = double(b[0]) * d.x + double(b[1]) * d.y + double(b[2]) * d.z;
+        n[0] -= n[k + 1];
+        s[0] -= s[k + 1];
+        nmax = std::max(nmax, std::abs(n[k + 1]));
+    }
+    // Pad: the tetrahedra of a shell overlap a little along shared faces, by more than the
+    // float error of B applied to a distant origin, so no ray slips between them.
+    const double eps = 1e-5 + 1e-6 * nmax;
+    double a = t0, b = t1;
+    for (int k = 0; k < 4; ++k) {
+        if (s[k] > 0.0) a = std::max(a, (-eps - n[k]) / s[k]);
+        else if (s[k] < 0.0) b = std::min(b, (-eps - n[k]) / s[k]);
+        else if (n[k] < -eps) return false;
+    }
+    if (!(a <= b)) return false;
+    t0 = float(a);
+    t1 = float(b);
+    return t0 <= t1;
+}
+
+template <bool AnyHit>
+bool ShellShape::trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float tfar, float *t_hit, uint32_t *tet,
+                             float *x, float *y) const {
+    const Prism &P = m_prisms[prism];
+    struct Seg {
+        float t0, t1;
+        int k;
+    } seg[3];
+    int ns = 0;
+    for (int k = 0; k < 3; ++k) {
+        if (!(P.valid & (1u << k))) continue;
+        float a = tnear, b = tfar;
+        if (clip(P.tet[k], o, d, a, b)) seg[ns++] = {a, b, k};
+    }
+    if (ns == 0) return false;
+    for (int i = 1; i < ns; ++i)  // insertion sort of at most three segments by entry
+        for (int j = i; j > 0 && seg[j].t0 < seg[j - 1].t0; --j) std::swap(seg[j], seg[j - 1]);
+    bool found = false;
+    float best = tfar;
+    const Heightfield &hf = *m_disp.field;
+    for (int i = 0; i < ns; ++i) {
+        if (seg[i].t0 >= best) break;
+        const Tet &T = P.tet[seg[i].k];
+        // Re-base at the entry point: cell-space coordinates stay small and exact.
+        const float ta = seg[i].t0, tb = std::min(seg[i].t1, best);
+        const Vec3 pe = o + d * ta;
+        const Vec3 te = Vec3(T.t0[0], T.t0[1], T.t0[2]) + mul3(T.A, pe - Vec3(T.w0[0], T.w0[1], T.w0[2]));
+        const Vec3 td = mul3(T.A, d);
+        if constexpr (AnyHit) {
+            if (hf.occluded(te, td, 0.f, tb - ta, P.ox, P.oy)) return true;
+        } else {
+            HeightfieldHit h;
+            if (hf.intersect(te, td, 0.f, tb - ta, h, P.ox, P.oy)) {
+                float t = ta + h.t;
+                if (t > tnear && t < best) {
+                    best = t;
+                    found = true;
+                    *tet = 3 * prism + uint32_t(seg[i].k);
+                    *x = h.x;
+                    *y = h.y;
+                }
+            }
+        }
+    }
+    if (found) *t_hit = best;
+    return found;
+}
+
+bool ShellShape::intersect_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float &tfar, uint32_t &tet, float &x,
+                                 float &y) const {
+    float t;
+    if (!trace_prism<false>(prism, o, d, tnear, tfar, &t, &tet, &x, &y)) return false;
+    tfar = t;
+    return true;
+}
+
+bool ShellShape::occluded_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float tfar) const {
+    return trace_prism<true>(prism, o, d, tnear, tfar, nullptr, nullptr, nullptr, nullptr);
+}
+
+RTCGeometry ShellShape::build_embree(RTCDevice device) const {
+    RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
+    rtcSetGeometryUserPrimitiveCount(g, unsigned(m_prisms.size()));
+    rtcSetGeometryUserData(g, const_cast<ShellShape *>(this));
+    rtcSetGeometryBoundsFunction(g, bounds_cb, nullptr);
+    rtcSetGeometryIntersectFunction(g, intersect_cb);
+    rtcSetGeometryOccludedFunction(g, occluded_cb);
+    rtcCommitGeometry(g);
+    return g;
+}
+
+void ShellShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float u, float v,
+                                  SurfaceInteraction &si) const {
+    const Prism &P = m_prisms[prim / 3];
+    const Tet &T = P.tet[prim % 3];
+    const Heightfield &hf = *m_disp.field;
+    float hx, hy;
+    hf.eval(double(u) + double(P.ox), double(v) + double(P.oy), hx, hy);
+    si.t = t;
+    si.shape = this;
+    si.prim = prim;
+    si.p = ray.o + ray.d * t;
+    si.wo = -normalize(ray.d);
+    // Micro-normal: the gradient of h - H(x, y) is a covector, so it maps to world space
+    // with the transpose of the world-to-cell Jacobian A (= inverse-transpose of the
+    // cell-to-world Jacobian). It points to increasing height, i.e. out of the base.
+    Vec3 n = normalize(mul3T(T.A, Vec3(-hx, -hy, 1.f)));
+    if (!(length_squared(n) > 0.f) || !is_finite(n)) n = si.wo;
+    si.ng = si.ns = n;
+    const double cw = double(hf.width()) * m_disp.tiling_u, ch = double(hf.height()) * m_disp.tiling_v;
+    si.uv = Vec2(float((double(u) + double(P.ox)) / cw), float((double(v) + double(P.oy)) / ch));
+    // Error bound of o + t d plus the intersector's cell-space round-off mapped to world.
+    si.p_error = 2e-6f * (max_component(vabs(ray.o)) + t * max_component(vabs(ray.d))) +
+                 1e-5f * (m_hmax - m_hmin) + 1e-9f;
+    // dp/du, dp/dv of the displaced surface: J (dx/du, 0, h_x dx/du) with J = A^-1.
+    Mat3d A, J;
+    for (int i = 0; i < 9; ++i) A[i] = T.A[i];
+    double det;
+    bool ok = invert3(A, J, det);
+    if (ok) {
+        auto col = [&](double a, double b, double c) {
+            return Vec3(float(J[0] * a + J[1] * b + J[2] * c), float(J[3] * a + J[4] * b + J[5] * c),
+                        float(J[6] * a + J[7] * b + J[8] * c));
+        };
+        si.dpdu = col(cw, 0.0, hx * cw);
+        si.dpdv = col(0.0, ch, hy * ch);
+        ok = is_finite(si.dpdu) && is_finite(si.dpdv) && length_squared(cross(si.dpdu, si.dpdv)) > 0.f;
+    }
+    if (!ok) coordinate_system(n, si.dpdu, si.dpdv);
+}
+
+PositionSample ShellShape::sample_area(float u_prim, Vec2 u) const {
+    PositionSample ps;
+    size_t i = m_area_distr.sample_discrete(u_prim);
+    uint32_t tri = m_prism_tri[i];
+    Vec2 b = square_to_uniform_triangle(u);
+    const uint32_t i0 = m_base.indices[3 * tri], i1 = m_base.indices[3 * tri + 1], i2 = m_base.indices[3 * tri + 2];
+    float b2 = 1.f - b.x - b.y;
+    ps.p = m_base.positions[i0] * b.x + m_base.positions[i1] * b.y + m_base.positions[i2] * b2;
+    ps.n = normalize(m_base.normals[i0] * b.x + m_base.normals[i1] * b.y + m_base.normals[i2] * b2);
+    ps.uv = m_base.uvs[i0] * b.x + m_base.uvs[i1] * b.y + m_base.uvs[i2] * b2;
+    ps.pdf_area = m_base_area > 0.f ? 1.f / m_base_area : 0.f;
+    ps.prim = uint32_t(i);
+    return ps;
+}
+
+size_t ShellShape::memory_bytes() const {
+    // Prisms + Embree's BVH over them (~64 B a primitive) + base mesh + heightfield.
+    return m_prisms.size() * (sizeof(Prism) + sizeof(uint32_t) + 64 + 4) + m_base.memory_bytes() +
+           m_disp.field->memory_bytes();
+}
+
+std::string ShellShape::to_string() const {
+    return fmt::format("{} (shell map: {} prisms over {} base triangles; map {}x{} '{}' tiled {}x{}, heights [{:.4g}, "
+                       "{:.4g}]; geometry {:.1f} MiB, of it heightfield {:.1f} MiB)",
+                       m_name, m_prisms.size(), m_base.triangle_count(), m_disp.field->width(), m_disp.field->height(),
+                       m_disp.source, m_disp.tiling_u, m_disp.tiling_v, m_disp.field->min_height(),
+                       m_disp.field->max_height(), memory_bytes() / 1048576.0, m_disp.field->memory_bytes() / 1048576.0);
+}
+
+}  // namespace meso

@@ -1,0 +1,84 @@
+// Shell-mapped displacement (Porumbescu et al. 2005, as used by paper 004 §7.1): the shell
+// between a base mesh offset along its interpolated vertex normals by the heightfield's
+// minimum and maximum height, cut into one prism per base triangle and each prism into
+// three tetrahedra. Inside a tetrahedron, world space maps linearly to cell space
+// (x, y, h), so a ray stays a ray there and the heightfield intersector traces it exactly.
+//
+// * Diagonals: a prism over base vertices a < b < c (ordered by position-welded index)
+//   is split into (a b c a'), (b c a' b'), (c a' b' c'); every side quad's diagonal then
+//   joins the top of its lower-index vertex to the bottom of its higher-index one, which
+//   depends only on the shared edge, so neighbouring prisms cut shared faces identically
+//   (no cracks), also across uv seams where vertices are duplicated.
+// * Prisms are Embree user geometry. A ray is clipped against each tetrahedron (padded
+//   slightly so shared faces overlap; the heightfield is one function, so overlapping
+//   tests agree), re-based at its entry point, mapped to cell space and traced.
+// * Embree hit: primID = 3 * prism + tetrahedron, (u, v) = cell-space hit relative to
+//   the prism's integer cell origin; fill_interaction rebuilds the micro-normal
+//   (inverse-transpose of the texture-to-world Jacobian applied to (-h_x, -h_y, 1)),
+//   the micro uv and dp/du, dp/dv.
+// * Memory: per prism three 24-float tetrahedra plus an integer cell origin, and the
+//   heightfield (map + min/max pyramid) once, whatever the tiling.
+#pragma once
+#include <memory>
+#include "geometry/displacement.h"
+#include "geometry/mesh.h"
+#include "geometry/shape.h"
+#include "sampling/distribution.h"
+
+namespace meso {
+
+class ShellShape : public Shape {
+public:
+    /// `base` in world space with uvs (normals are computed, area-weighted, if absent).
+    ShellShape(const TriangleMesh &base, Displacement disp, std::string name);
+    RTCGeometry build_embree(RTCDevice device) const override;
+    void fill_interaction(const Ray &ray, float t, uint32_t prim, float u, float v,
+                          SurfaceInteraction &si) const override;
+    /// Area of the base mesh (the displaced area is larger).
+    float surface_area() const override { return m_base_area; }
+    /// Samples the base mesh (shell shapes cannot be emitters; used by nothing else).
+    PositionSample sample_area(float u_prim, Vec2 u) const override;
+    size_t primitive_count() const override { return m_prisms.size(); }
+    size_t memory_bytes() const override;
+    std::string to_string() const override;
+
+    const Displacement &displacement() const { return m_disp; }
+    float shell_min() const { return m_hmin; }
+    float shell_max() const { return m_hmax; }
+
+    // Embree callbacks (public for the C trampolines).
+    void prism_bounds(uint32_t prism, float lo[3], float hi[3]) const;
+    /// Closest hit in (tnear, tfar) of prism `prism`; on a hit updates tfar, tet, x, y.
+    bool intersect_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float &tfar, uint32_t &tet, float &x,
+                         float &y) const;
+    bool occluded_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float tfar) const;
+
+private:
+    struct Tet {
+        float w0[3];     ///< world vertex 0
+        float B[9];      ///< world -> barycentric (lambda_1..3 of p - w0), row-major
+        float A[9];      ///< world -> cell space (Jacobian), row-major
+        float t0[3];     ///< cell-space vertex 0 (relative to the prism's cell origin)
+    };
+    struct Prism {
+        Tet tet[3];
+        int64_t ox = 0, oy = 0;  ///< integer cell origin
+        uint8_t valid = 0;       ///< bit k: tetrahedron k has a volume
+    };
+    /// Clips o + t d to tetrahedron `T` within [t0, t1]; false if empty.
+    static bool clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1);
+    template <bool AnyHit>
+    bool trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float tfar, float *t_hit, uint32_t *tet, float *x,
+                     float *y) const;
+
+    Displacement m_disp;
+    TriangleMesh m_base;
+    std::vector<Prism> m_prisms;
+    std::vector<uint32_t> m_prism_tri;  ///< base triangle of each prism
+    float m_hmin = 0.f, m_hmax = 0.f;  ///< padded shell heights
+    float m_base_area = 0.f;
+    Distribution1D m_area_distr;
+    std::string m_name;
+};
+
+}  // namespace meso
