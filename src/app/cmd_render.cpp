@@ -12,6 +12,7 @@
 #include "geometry/embree_accel.h"
 #include "meso_version.h"
 #include "render/renderer.h"
+#include "geometry/shape.h"
 #include "scene/scene.h"
 
 namespace meso {
@@ -24,6 +25,7 @@ struct RenderArgs {
     int64_t seed = -1;
     std::vector<std::string> defines;
     bool plan = false, quiet = false;
+    size_t max_triangles = 0;
     float exposure = 0.f;
 };
 
@@ -56,7 +58,7 @@ int run_render(const RenderArgs &a) {
     if (!a.reference.empty()) reference = read_image(a.reference);
     if (!a.convergence.empty() && a.reference.empty()) throw MesoError("--convergence needs --reference");
 
-    std::unique_ptr<Scene> scene = load_scene(a.scene, a.defines);
+    std::unique_ptr<Scene> scene = load_scene(a.scene, a.defines, a.max_triangles);
     double load_s = since(t0);
     if (!a.reference.empty() && (reference.width != scene->camera->width() || reference.height != scene->camera->height()))
         throw MesoError(fmt::format("{}: reference is {}x{} but the camera renders {}x{}", a.reference, reference.width,
@@ -64,8 +66,10 @@ int run_render(const RenderArgs &a) {
     if (a.plan) {
         std::printf("plan for %s (nothing is built or rendered):\n", a.scene.c_str());
         for (auto &line : scene->plan()) std::printf("  %s\n", line.c_str());
-        std::printf("  output: %s, %s, %s\n", out.string().c_str(), out.replace_extension(".png").string().c_str(),
-                    out.replace_extension(".json").string().c_str());
+        std::filesystem::path png = out, js = out;
+        png.replace_extension(".png");
+        js.replace_extension(".json");
+        std::printf("  output: %s, %s, %s\n", out.string().c_str(), png.string().c_str(), js.string().c_str());
         return 0;
     }
     auto tb = std::chrono::steady_clock::now();
@@ -103,6 +107,15 @@ int run_render(const RenderArgs &a) {
     rec["rays_per_s"] = r.rays_per_s;
     rec["peak_rss_mb"] = peak_rss_mb();
     rec["nan_count"] = r.nan_count;
+    // Geometry memory per shape (shell maps: prisms + heightfield, independent of tiling).
+    size_t geometry_bytes = 0;
+    nlohmann::json shapes = nlohmann::json::array();
+    for (const auto &s : scene->shapes) {
+        geometry_bytes += s->memory_bytes();
+        shapes.push_back({{"shape", s->to_string()}, {"primitives", s->primitive_count()}, {"memory_bytes", s->memory_bytes()}});
+    }
+    rec["geometry_bytes"] = geometry_bytes;
+    rec["shapes"] = shapes;
     if (!a.reference.empty()) {
         ImageMetrics m = compute_metrics(r.image, reference);
         rec["reference"] = a.reference;
@@ -140,6 +153,9 @@ SubcommandRegistrar reg({"render", "Render a scene (JSON or glTF) to EXR + PNG +
     app.add_option("-D,--define", a->defines, "override a scene value: -D sampler.sample_count=64 -D shapes[0].material.alpha=0.1");
     app.add_option("--reference", a->reference, "reference EXR: report MSE and relMSE");
     app.add_option("--convergence", a->convergence, "CSV of elapsed time, spp and error after each pass (needs --reference)");
+    app.add_option("--max-triangles", a->max_triangles,
+                   "refuse explicit tessellation (displacement mode tessellate) beyond this many triangles per shape "
+                   "(default 67108864, sized for 24 GB)");
     app.add_flag("--plan", a->plan, "print what the scene will load and build, with memory, and exit");
     app.add_flag("-q,--quiet", a->quiet, "no progress output");
     app.add_option("--exposure", a->exposure, "exposure in stops for the PNG");
