@@ -19,6 +19,7 @@
 //                                      roughness, heights)
 //   scale        float   1             multiplier, finite
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "image/image.h"
 #include "render/texture.h"
@@ -33,8 +34,8 @@ enum class Filter { Nearest, Bilinear, Trilinear };
 
 class BitmapTexture final : public Texture {
 public:
-    BitmapTexture(MipMap mip, Filter filter, float scale, std::string name)
-        : m_mip(std::move(mip)), m_filter(filter), m_scale(scale), m_name(std::move(name)) {
+    BitmapTexture(MipMap mip, Filter filter, float scale, Vec2 tiling, std::string name)
+        : m_mip(std::move(mip)), m_filter(filter), m_scale(scale), m_tiling(tiling), m_name(std::move(name)) {
         float m[3] = {0, 0, 0};
         m_mip.level_mean(0, m);
         m_mean = to_spectrum(m) * m_scale;
@@ -63,18 +64,21 @@ private:
         return m_mip.channels() == 1 ? Spectrum(v[0]) : Spectrum(v[0], v[1], v[2]);
     }
     void lookup(const ShadingContext &ctx, float *v) const {
+        // The image repeats tiling.x times along u and tiling.y along v (matching a
+        // displacement's tiling, so an albedo map stays aligned with the micro-facets).
+        const float tu = m_tiling.x, tv = m_tiling.y;
+        const float u = ctx.uv.x * tu, w = ctx.uv.y * tv;
         switch (m_filter) {
-            case Filter::Nearest: m_mip.nearest(0, ctx.uv.x, ctx.uv.y, v); break;
-            case Filter::Bilinear: m_mip.bilinear(0, ctx.uv.x, ctx.uv.y, v); break;
-            case Filter::Trilinear:
-                m_mip.filtered(ctx.uv.x, ctx.uv.y, ctx.dudx, ctx.dudy, ctx.dvdx, ctx.dvdy, v);
-                break;
+            case Filter::Nearest: m_mip.nearest(0, u, w, v); break;
+            case Filter::Bilinear: m_mip.bilinear(0, u, w, v); break;
+            case Filter::Trilinear: m_mip.filtered(u, w, ctx.dudx * tu, ctx.dudy * tu, ctx.dvdx * tv, ctx.dvdy * tv, v); break;
         }
     }
 
     MipMap m_mip;
     Filter m_filter;
     float m_scale;
+    Vec2 m_tiling;
     Spectrum m_mean;
     std::string m_name;
 };
@@ -93,6 +97,13 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         p.fail("wrap_mode", fmt::format("expected \"repeat\", \"clamp\" or \"mirror\", got \"{}\"", w));
     bool raw = p.get_bool("raw", false);
     float scale = p.get_float("scale", 1.f);
+    Vec2 tiling(1.f, 1.f);
+    if (p.has("tiling")) {
+        std::vector<float> t = p.raw("tiling").is_number() ? std::vector<float>(2, p.get_float("tiling")) : p.get_floats("tiling");
+        if (t.size() != 2 || !(t[0] > 0.f && t[0] <= 1e6f) || !(t[1] > 0.f && t[1] <= 1e6f))
+            p.fail("tiling", "expected a repeat count or [repeats_u, repeats_v], each in (0, 1e6]");
+        tiling = Vec2(t[0], t[1]);
+    }
 
     Image img;
     try {
@@ -118,10 +129,10 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         }
     if (bad > 0) p.fail("filename", fmt::format("{}: {} texel value(s) are NaN or infinite", file, bad));
     MipMap mip(img.width, img.height, nc, std::move(data), wrap);
-    return std::make_shared<BitmapTexture>(std::move(mip), filter, scale, file);
+    return std::make_shared<BitmapTexture>(std::move(mip), filter, scale, tiling, file);
 }
 
-MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, wrap_mode, raw, scale)",
+MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, wrap_mode, raw, scale, tiling)",
                       create_bitmap);
 MESO_REGISTER_TEXTURE("image", "alias of 'bitmap'", create_bitmap);
 
