@@ -108,12 +108,16 @@ size_t Heightfield::memory_bytes() const {
     return bytes;
 }
 
-bool intersect_bilinear_patch(Vec3 o, Vec3 d, float h00, float h10, float h01, float h11, float t0, float t1,
-                              float &t_hit) {
+namespace {
+
+/// intersect_bilinear_patch with the ray origin (relative to the cell corner) in double:
+/// the traversal forms it as o - corner exactly, so that every cell sees the same ray (a
+/// float o - corner rounds differently per cell, which opened gaps at cell seams).
+bool patch_root(double lox, double loy, double loz, Vec3 d, float h00, float h10, float h01, float h11, float t0,
+                float t1, float &t_hit) {
     if (!(t1 >= t0)) return false;
     // Re-base the ray at t0 so the quadratic works with small numbers: s = t - t0.
-    const double ox = double(o.x) + double(t0) * d.x, oy = double(o.y) + double(t0) * d.y,
-                 oh = double(o.z) + double(t0) * d.z;
+    const double ox = lox + double(t0) * d.x, oy = loy + double(t0) * d.y, oh = loz + double(t0) * d.z;
     const double dx = d.x, dy = d.y, dh = d.z;
     const double e = double(h10) - h00, f = double(h01) - h00, g = double(h00) + h11 - h10 - h01;
     // F(s) = ray height - patch height = A s^2 + B s + C.
@@ -125,8 +129,10 @@ bool intersect_bilinear_patch(Vec3 o, Vec3 d, float h00, float h10, float h01, f
 
     double roots[2];
     int n = 0;
-    const double scale = std::abs(B) + std::abs(C) + 1e-300;
-    if (std::abs(A) * std::max(smax, 1.0) <= 1e-12 * scale) {
+    // Linear when the quadratic term is negligible over the interval: |A| smax^2 against
+    // |B| smax + |C| (scale-free in d; |A| max(smax, 1) against |B| + |C| took a real
+    // quadratic for a line once |d| was small and the interval long, e.g. |d| = 1e-20).
+    if (std::abs(A) * smax * smax <= 1e-12 * (std::abs(B) * smax + std::abs(C)) || A == 0.0) {
         if (B != 0.0) roots[n++] = -C / B;
     } else {
         double disc = B * B - 4 * A * C;
@@ -158,6 +164,13 @@ bool intersect_bilinear_patch(Vec3 o, Vec3 d, float h00, float h10, float h01, f
     return false;
 }
 
+}  // namespace
+
+bool intersect_bilinear_patch(Vec3 o, Vec3 d, float h00, float h10, float h01, float h11, float t0, float t1,
+                              float &t_hit) {
+    return patch_root(o.x, o.y, o.z, d, h00, h10, h01, h11, t0, t1, t_hit);
+}
+
 bool Heightfield::intersect(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit &hit, int64_t ox,
                             int64_t oy) const {
     return traverse<false>(o, d, tmin, tmax, &hit, ox, oy);
@@ -171,9 +184,21 @@ template <bool AnyHit>
 bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit *hit, int64_t ox,
                            int64_t oy) const {
     if (m_levels.empty() || !(tmax > tmin)) return false;
+    // Zero (and denormal-small) direction components become +0: the tile walk (no step
+    // along that axis), the slab tests (1/d = +1e30) and the child order then all agree on
+    // which side of a cell boundary a ray lying exactly on it belongs to. With -0 the slab
+    // tests placed such a ray in the cell on the far side of the boundary while the tile
+    // walk never visited the tile holding that cell: vertical rays at x or y a multiple of
+    // W or H leaked through.
+    for (int k = 0; k < 3; ++k)
+        if (!(std::abs(d[k]) > 1e-30f)) d[k] = 0.f;
     const float inv[3] = {safe_inv(d.x), safe_inv(d.y), safe_inv(d.z)};
-    // Clip to the height slab of the whole field.
-    {
+    // Clip to the height slab of the whole field. A horizontal ray is inside it or never
+    // meets it (with 1/d = 1e30 a ray just below the field got t in [1e27, 1e27]: a walk
+    // over millions of tiles, and tile indices that overflow).
+    if (d.z == 0.f) {
+        if (!(o.z >= m_min && o.z <= m_max)) return false;
+    } else {
         float ta = (m_min - o.z) * inv[2], tb = (m_max - o.z) * inv[2];
         if (ta > tb) std::swap(ta, tb);
         // Slightly widened: a ray grazing the top of the field must still reach the leaves.
@@ -182,28 +207,36 @@ bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHi
         tmax = std::min(tmax, tb + pad);
         if (!(tmax >= tmin)) return false;
     }
-    // Tiles crossed by the ray between tmin and tmax (2D DDA on the W x H tile grid). Work
-    // in double for the tile walk: the offsets may be large.
-    const double px = double(o.x) + double(ox), py = double(o.y) + double(oy);
+    // Tiles crossed by the ray between tmin and tmax (2D DDA on the W x H tile grid), walked
+    // in the caller's small coordinates: tile k starts at k W - offset there, an integer
+    // computed exactly, so tile boundaries and the node boxes below agree even when
+    // o.x + offset would not fit in a double's 53 bits.
     const double W = m_w, H = m_h;
-    double sx = px + double(tmin) * d.x, sy = py + double(tmin) * d.y;
-    int64_t tx = ifloor(sx / W), ty = ifloor(sy / H);
+    auto floor_div = [](int64_t a, int64_t b) {
+        int64_t q = a / b;
+        return (a % b != 0 && a < 0) ? q - 1 : q;
+    };
+    const int64_t qx = floor_div(ox, m_w), qy = floor_div(oy, m_h);
+    int64_t tx = qx + ifloor((double(ox - qx * m_w) + double(o.x) + double(tmin) * d.x) / W);
+    int64_t ty = qy + ifloor((double(oy - qy * m_h) + double(o.y) + double(tmin) * d.y) / H);
     const int stepx = d.x > 0 ? 1 : -1, stepy = d.y > 0 ? 1 : -1;
-    auto next_t = [&](int64_t tile, int step, double p0, double dir, double size) {
+    auto next_t = [&](int64_t tile, int step, int64_t size, int64_t off, double p0, double dir) {
         if (dir == 0.0) return double(Infinity);
-        double boundary = double(tile + (step > 0 ? 1 : 0)) * size;
+        const double boundary = double((tile + (step > 0 ? 1 : 0)) * size - off);
         return (boundary - p0) / dir;
     };
-    double tnx = next_t(tx, stepx, px, d.x, W), tny = next_t(ty, stepy, py, d.y, H);
+    double tnx = next_t(tx, stepx, m_w, ox, o.x, d.x), tny = next_t(ty, stepy, m_h, oy, o.y, d.y);
     const int top = int(m_levels.size()) - 1;
     const int child_mask = (d.x < 0 ? 1 : 0) | (d.y < 0 ? 2 : 0);
-    const float eps_t = 1e-5f;  // relative widening of leaf intervals (watertight cell seams)
+    // Relative widening of the node intervals, which only cull (the leaves clip exactly,
+    // below): covers the float round-off of the slab values (~2e-7).
+    const float eps_t = 1e-6f;
 
     double t_tile0 = tmin;
     for (int guard = 0; guard < (1 << 22); ++guard) {
         const double t_tile1 = std::min(double(tmax), std::min(tnx, tny));
         // Tile origin in the caller's (small) coordinates.
-        const float tile_x = float(double(tx) * W - double(ox)), tile_y = float(double(ty) * H - double(oy));
+        const float tile_x = float(tx * m_w - ox), tile_y = float(ty * m_h - oy);
         const float seg0 = float(t_tile0), seg1 = float(t_tile1);
         const float pad_tile = eps_t * (std::abs(seg0) + std::abs(seg1)) + 1e-30f;
         struct Node {
@@ -240,16 +273,39 @@ bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHi
                 const int i1 = nd.i + 1 == m_w ? 0 : nd.i + 1, j1 = nd.j + 1 == m_h ? 0 : nd.j + 1;
                 const float h00 = m_heights[size_t(nd.j) * m_w + nd.i], h10 = m_heights[size_t(nd.j) * m_w + i1];
                 const float h01 = m_heights[size_t(j1) * m_w + nd.i], h11 = m_heights[size_t(j1) * m_w + i1];
-                const Vec3 local(o.x - x0, o.y - y0, o.z);
+                // The cell's own t interval, in double from the ray relative to the cell
+                // corner (exact: a difference of two floats). Neighbouring cells compute
+                // their shared boundary from the same numbers (1 - lx here is -lx' there),
+                // so the leaves tile the ray without gaps, and a root is accepted only in
+                // its own cell (roots on a patch's extension beyond the cell were hits off
+                // the surface: a ray passing just over a ridge "hit" the extended slope).
+                // One float ulp of slack each side covers the rounding of the two solves.
+                const double lx = double(o.x) - double(x0), ly = double(o.y) - double(y0);
+                double c0 = tmin, c1 = tmax;
+                auto clip_axis = [&](double l, double dd) {
+                    if (dd != 0.0) {
+                        double u = -l / dd, v = (1.0 - l) / dd;
+                        if (u > v) std::swap(u, v);
+                        c0 = std::max(c0, u);
+                        c1 = std::min(c1, v);
+                    } else if (!(l >= 0.0 && l <= 1.0)) {
+                        c1 = -double(Infinity);
+                    }
+                };
+                clip_axis(lx, d.x);
+                clip_axis(ly, d.y);
+                if (!(c1 >= c0)) continue;
+                const float s0 = std::max(std::nextafter(float(c0), -Infinity), tmin);
+                const float s1 = std::min(std::nextafter(float(c1), Infinity), tmax);
                 float th;
-                const float s0 = std::max(xy_near - pad, tmin), s1 = std::min(xy_far + pad, tmax);
-                if (!intersect_bilinear_patch(local, d, h00, h10, h01, h11, s0, s1, th)) continue;
+                if (!patch_root(lx, ly, o.z, d, h00, h10, h01, h11, s0, s1, th)) continue;
                 if (!(th > tmin) || th > tmax) continue;
                 if constexpr (AnyHit) {
                     return true;
                 } else {
                     // Local patch coordinates of the hit, clamped into the cell.
-                    const float a = std::clamp(local.x + th * d.x, 0.f, 1.f), b = std::clamp(local.y + th * d.y, 0.f, 1.f);
+                    const float a = std::clamp(float(lx + double(th) * d.x), 0.f, 1.f),
+                                b = std::clamp(float(ly + double(th) * d.y), 0.f, 1.f);
                     const float g = h00 + h11 - h10 - h01;
                     hit->t = th;
                     hit->x = x0 + a;
@@ -272,10 +328,10 @@ bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHi
         t_tile0 = t_tile1;
         if (tnx < tny) {
             tx += stepx;
-            tnx = next_t(tx, stepx, px, d.x, W);
+            tnx = next_t(tx, stepx, m_w, ox, o.x, d.x);
         } else {
             ty += stepy;
-            tny = next_t(ty, stepy, py, d.y, H);
+            tny = next_t(ty, stepy, m_h, oy, o.y, d.y);
         }
     }
     return false;
