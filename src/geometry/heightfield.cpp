@@ -244,7 +244,35 @@ bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHi
         };
         Node stack[96];
         int sp = 0;
-        stack[sp++] = {top, 0, 0};
+        // Start below the tile's root: at the lowest level whose nodes are wider than the
+        // segment's footprint in this tile, so at most 2 x 2 nodes cover it (a short
+        // segment through a shell tetrahedron skips most of the pyramid). The footprint
+        // is padded; extra nodes are only culled.
+        {
+            const float xa = o.x + seg0 * d.x - tile_x, xb = o.x + seg1 * d.x - tile_x;
+            const float ya = o.y + seg0 * d.y - tile_y, yb = o.y + seg1 * d.y - tile_y;
+            const float bx0 = std::max(std::min(xa, xb) - 1e-3f, 0.f), bx1 = std::min(std::max(xa, xb) + 1e-3f, float(m_w));
+            const float by0 = std::max(std::min(ya, yb) - 1e-3f, 0.f), by1 = std::min(std::max(ya, yb) + 1e-3f, float(m_h));
+            const float extent = std::max(bx1 - bx0, by1 - by0);
+            int k = top;
+            if (std::isfinite(extent) && bx1 >= bx0 && by1 >= by0) {
+                k = 0;
+                while (k < top && float(1 << k) < extent + 1.f) ++k;
+            }
+            if (k >= top) {
+                stack[sp++] = {top, 0, 0};
+            } else {
+                const Level &L = m_levels[k];
+                const int i0 = std::min(int(bx0) >> k, L.w - 1), i1 = std::min(int(bx1) >> k, L.w - 1);
+                const int j0 = std::min(int(by0) >> k, L.h - 1), j1 = std::min(int(by1) >> k, L.h - 1);
+                // At most 2 x 2 nodes, pushed back to front like children.
+                for (int q = 3; q >= 0; --q) {
+                    const int c = q ^ child_mask;
+                    const int ni = i0 + (c & 1), nj = j0 + (c >> 1);
+                    if (ni <= i1 && nj <= j1) stack[sp++] = {k, ni, nj};
+                }
+            }
+        }
         while (sp > 0) {
             const Node nd = stack[--sp];
             const Level &L = m_levels[nd.level];
