@@ -8,30 +8,12 @@
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
-#include "app/commands.h"
+#include "cli_capture.h"
 
 namespace {
 
-struct CliResult {
-    int code;
-    std::string out, err;
-};
-
-CliResult run(std::vector<std::string> args) {
-    args.insert(args.begin(), "meso");
-    std::vector<char *> argv;
-    for (auto &a : args) argv.push_back(a.data());
-    testing::internal::CaptureStdout();
-    testing::internal::CaptureStderr();
-    int code = meso::run_cli(int(argv.size()), argv.data());
-    std::fflush(stdout);
-    std::fflush(stderr);
-    CliResult r;
-    r.code = code;
-    r.out = testing::internal::GetCapturedStdout();
-    r.err = testing::internal::GetCapturedStderr();
-    return r;
-}
+using meso::test::CliResult;
+meso::test::CliResult run(std::vector<std::string> args) { return meso::test::run_cli_captured(std::move(args)); }
 
 TEST(CmdMaterial, EvalPrintsValueAndPdf) {
     CliResult r = run({"material", "eval", R"({"type":"diffuse","reflectance":0.5})", "--wo", "0,0", "--wi", "60,45"});
