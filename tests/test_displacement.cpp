@@ -3,7 +3,10 @@
 // and clear errors for bad displacement blocks.
 #include <gtest/gtest.h>
 #include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
 #include <fmt/format.h>
+#include "cli_capture.h"
 #include "core/error.h"
 #include "geometry/embree_accel.h"
 #include "geometry/heightmap.h"
@@ -290,4 +293,28 @@ TEST(Displacement, ShellMatchesTessellationOnPlane) {
         CrossCheck r = cross_check("disp_x_plane", scene, 16, 8);
         EXPECT_LT(r.cross_relmse, 1.15 * r.noise_relmse) << integrator << ": noise " << r.noise_relmse;
     }
+}
+
+// From the command line: --max-triangles refuses a too-fine tessellation with a message
+// that suggests the shell mode, and the render record reports the geometry memory.
+TEST(Displacement, CommandLineLimitAndRecord) {
+    std::string scene = write_temp("disp_cli.json", R"({
+      "camera": {"type": "perspective", "origin": [0, 2, 2], "target": [0, 0, 0], "up": [0, 1, 0], "width": 16, "height": 16},
+      "shapes": [{"type": "rectangle", "to_world": {"rotate": {"axis": [1, 0, 0], "angle": -90}},
+                  "displacement": {"map": {"generator": "fbm", "size": 64}, "scale": 0.5, "tiling": 4, "mode": "tessellate"}}],
+      "lights": [{"type": "constant", "radiance": 1}]
+    })");
+    CliResult r = run_cli_captured({"render", scene, "--max-triangles", "1000", "--plan"});
+    EXPECT_NE(r.code, 0);
+    EXPECT_NE(r.err.find("--max-triangles"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("shell"), std::string::npos) << r.err;
+
+    std::string out = scratch_dir("meso_disp") + "/cli.exr";
+    r = run_cli_captured({"render", scene, "-o", out, "--spp", "1", "-q", "-D", "shapes[0].displacement.mode=\"shell\""});
+    ASSERT_EQ(r.code, 0) << r.err;
+    std::ifstream f(scratch_dir("meso_disp") + "/cli.json");
+    nlohmann::json rec = nlohmann::json::parse(f);
+    ASSERT_TRUE(rec.contains("geometry_bytes"));
+    EXPECT_GT(rec["geometry_bytes"].get<size_t>(), size_t(64 * 64 * 4));  // at least the heights
+    EXPECT_NE(rec["shapes"][0]["shape"].get<std::string>().find("shell map"), std::string::npos);
 }
