@@ -4,6 +4,7 @@
 #include <limits>
 #include "core/error.h"
 #include "render/lod.h"
+#include "render_test_util.h"
 
 using namespace meso;
 
@@ -80,4 +81,24 @@ TEST(LodChain, FootprintTexelsIsTheMajorAxisAndFinite) {
     LodChain c({1.f, 8.f});
     EXPECT_EQ(c.select(nan).lo, 0);
     EXPECT_EQ(c.select(inf).lo, 1);
+}
+
+// The aov integrator's footprint: a camera facing a (flat) shell-mapped plane at distance 2
+// sees a pixel footprint of 2 d tan(fov/2) / width world units, i.e. that times the map's
+// texels per world unit (64 texels x tiling 4 over a plane 2 units wide = 128 per unit).
+TEST(LodAov, FootprintOfAPlaneFacingTheCamera) {
+    const char *scene = R"({
+      "camera": {"type": "perspective", "origin": [0, 0, 2], "target": [0, 0, 0], "up": [0, 1, 0],
+                 "fov": 40, "width": 101, "height": 101},
+      "integrator": {"type": "aov", "aov": "footprint"},
+      "sampler": {"type": "independent", "sample_count": 1},
+      "shapes": [{"type": "rectangle", "displacement": {"map": {"generator": "fbm", "size": 64}, "scale": 0, "tiling": 4}}]
+    })";
+    auto s = meso::test::load_json_scene("lod_aov.json", scene);
+    meso::RenderResult r = meso::test::render_scene(*s, 1);
+    const double expected = 2.0 * 2.0 * std::tan(20.0 * 3.14159265358979 / 180.0) / 101.0 * 128.0;
+    EXPECT_NEAR(r.image.at(50, 50, 0), expected, 0.01 * expected);
+    // Off-centre pixels see the plane obliquely: wider footprints, still finite.
+    EXPECT_GT(r.image.at(2, 2, 0), r.image.at(50, 50, 0));
+    EXPECT_TRUE(std::isfinite(r.image.at(0, 0, 0)));
 }

@@ -35,6 +35,9 @@ public:
     virtual std::string to_string() const = 0;
     /// The triangle mesh when the shape is one (area lights use it for solid-angle sampling).
     virtual const TriangleMesh *mesh() const { return nullptr; }
+    /// Texels per unit uv of the shape's own full-resolution map (a displacement map with
+    /// its tiling), for footprints and LoD; false when the shape has none.
+    virtual bool texel_grid(double &width, double &height) const { return false; }
 
     std::shared_ptr<Material> material;
     std::shared_ptr<Light> emitter;  ///< area light, or null

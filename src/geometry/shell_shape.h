@@ -43,6 +43,11 @@ public:
     std::string to_string() const override;
 
     const Displacement &displacement() const { return m_disp; }
+    bool texel_grid(double &width, double &height) const override {
+        width = double(m_disp.field->width()) * m_disp.tiling_u;
+        height = double(m_disp.field->height()) * m_disp.tiling_v;
+        return true;
+    }
     float shell_min() const { return m_hmin; }
     float shell_max() const { return m_hmax; }
 
