@@ -10,14 +10,22 @@
 //   trilinear: the MIP level from the ray-differential footprint,
 //              level = log2(footprint width in texels), blended between the two nearest
 //              levels; zero footprint -> level-0 bilinear.
+//   ewa:       elliptically weighted average (Heckbert 1989, as in pbrt-v4): the footprint
+//              ellipse with semi-axes (dudx, dvdx), (dudy, dvdy), its minor axis widened to
+//              at most max_anisotropy : 1, a truncated Gaussian over the texels of the two
+//              levels around log2(minor axis); keeps detail along the major axis that
+//              trilinear (which sizes its box by the major axis) blurs away.
 //
 // Parameters (Mitsuba 3 names):
 //   filename     string  required      image file, relative to the scene
-//   filter_type  string  "trilinear"   "nearest" | "bilinear" | "trilinear"
+//   filter_type  string  "trilinear"   "nearest" | "bilinear" | "trilinear" | "ewa"
+//   max_anisotropy float 8             ewa only: largest major/minor axis ratio, finite,
+//                                      >= 1 (above 64 acts as 64, which bounds the cost)
 //   wrap_mode    string  "repeat"      "repeat" | "clamp" | "mirror"
 //   raw          bool    false         true: no sRGB decoding of 8/16-bit data (normal maps,
 //                                      roughness, heights)
 //   scale        float   1             multiplier, finite
+#include <cmath>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include "core/error.h"
@@ -30,12 +38,13 @@
 namespace meso {
 namespace {
 
-enum class Filter { Nearest, Bilinear, Trilinear };
+enum class Filter { Nearest, Bilinear, Trilinear, Ewa };
 
 class BitmapTexture final : public Texture {
 public:
-    BitmapTexture(MipMap mip, Filter filter, float scale, Vec2 tiling, std::string name)
-        : m_mip(std::move(mip)), m_filter(filter), m_scale(scale), m_tiling(tiling), m_name(std::move(name)) {
+    BitmapTexture(MipMap mip, Filter filter, float max_anisotropy, float scale, Vec2 tiling, std::string name)
+        : m_mip(std::move(mip)), m_filter(filter), m_max_anisotropy(max_anisotropy), m_scale(scale), m_tiling(tiling),
+          m_name(std::move(name)) {
         float m[3] = {0, 0, 0};
         m_mip.level_mean(0, m);
         m_mean = to_spectrum(m) * m_scale;
@@ -53,7 +62,7 @@ public:
     }
     Spectrum mean() const override { return m_mean; }
     std::string to_string() const override {
-        static const char *filters[] = {"nearest", "bilinear", "trilinear"};
+        static const char *filters[] = {"nearest", "bilinear", "trilinear", "ewa"};
         return fmt::format("bitmap '{}' {}x{}x{}, {} filter, {} levels, {:.2f} MB", m_name, m_mip.width(),
                            m_mip.height(), m_mip.channels(), filters[int(m_filter)], m_mip.levels(),
                            m_mip.memory_bytes() / 1048576.0);
@@ -72,11 +81,15 @@ private:
             case Filter::Nearest: m_mip.nearest(0, u, w, v); break;
             case Filter::Bilinear: m_mip.bilinear(0, u, w, v); break;
             case Filter::Trilinear: m_mip.filtered(u, w, ctx.dudx * tu, ctx.dudy * tu, ctx.dvdx * tv, ctx.dvdy * tv, v); break;
+            case Filter::Ewa:
+                m_mip.ewa(u, w, ctx.dudx * tu, ctx.dudy * tu, ctx.dvdx * tv, ctx.dvdy * tv, v, m_max_anisotropy);
+                break;
         }
     }
 
     MipMap m_mip;
     Filter m_filter;
+    float m_max_anisotropy;
     float m_scale;
     Vec2 m_tiling;
     Spectrum m_mean;
@@ -90,7 +103,13 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
     if (f == "nearest") filter = Filter::Nearest;
     else if (f == "bilinear") filter = Filter::Bilinear;
     else if (f == "trilinear") filter = Filter::Trilinear;
-    else p.fail("filter_type", fmt::format("expected \"nearest\", \"bilinear\" or \"trilinear\", got \"{}\"", f));
+    else if (f == "ewa") filter = Filter::Ewa;
+    else
+        p.fail("filter_type",
+               fmt::format("expected \"nearest\", \"bilinear\", \"trilinear\" or \"ewa\", got \"{}\"", f));
+    float max_anisotropy = p.get_float("max_anisotropy", 8.f);
+    if (!(max_anisotropy >= 1.f && std::isfinite(max_anisotropy)))
+        p.fail("max_anisotropy", "expected a finite number >= 1");
     std::string w = p.get_string("wrap_mode", "repeat");
     WrapMode wrap;
     if (!parse_wrap_mode(w, wrap))
@@ -129,10 +148,10 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         }
     if (bad > 0) p.fail("filename", fmt::format("{}: {} texel value(s) are NaN or infinite", file, bad));
     MipMap mip(img.width, img.height, nc, std::move(data), wrap);
-    return std::make_shared<BitmapTexture>(std::move(mip), filter, scale, tiling, file);
+    return std::make_shared<BitmapTexture>(std::move(mip), filter, max_anisotropy, scale, tiling, file);
 }
 
-MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, wrap_mode, raw, scale, tiling)",
+MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, max_anisotropy, wrap_mode, raw, scale, tiling)",
                       create_bitmap);
 MESO_REGISTER_TEXTURE("image", "alias of 'bitmap'", create_bitmap);
 

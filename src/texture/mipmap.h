@@ -1,4 +1,5 @@
-// MIP pyramid of an N-channel float image with nearest, bilinear and trilinear lookups.
+// MIP pyramid of an N-channel float image with nearest, bilinear, trilinear and anisotropic
+// (EWA) lookups.
 // Reusable for anything stored per texel (colours, heights, slope moments): channels are
 // plain floats, and every level is the exact area average of level 0 (means are kept).
 //
@@ -14,6 +15,13 @@
 //         width = max(|(dudx·w, dvdx·h)|, |(dudy·w, dvdy·h)|),
 //     level = clamp(log2(width), 0, levels-1) (a footprint of k texels picks log2 k);
 //     zero footprint means level 0.
+//   * EWA (Heckbert 1989, "Fundamentals of Texture Mapping and Image Warping" §3.5.8; the
+//     pbrt-v4 variant): the derivative vectors (dudx, dvdx) and (dudy, dvdy) are the
+//     semi-axes of an ellipse with covariance Σ = J Jᵀ; its minor axis is widened so that
+//     major / minor <= max_anisotropy, the level is log2(minor semi-axis in level-0 texels),
+//     and each of the two levels around it sums its texels inside the ellipse (Σ + I in that
+//     level's texels: the +I is a one-texel reconstruction filter) with the truncated
+//     Gaussian weight exp(-2 r²) - exp(-2); the two sums are blended linearly.
 #pragma once
 #include <cstddef>
 #include <string>
@@ -55,6 +63,16 @@ public:
     void trilinear(float level, float u, float v, float *out) const;
     /// trilinear(level_for_footprint(...)).
     void filtered(float u, float v, float dudx, float dudy, float dvdx, float dvdy, float *out) const;
+    /// Elliptically weighted average over the footprint with semi-axes (dudx, dvdx) and
+    /// (dudy, dvdy) (see the conventions above). A zero footprint gives bilinear(0, u, v); a
+    /// footprint whose widened minor axis reaches the coarsest level gives that level's
+    /// (1x1) mean; non-finite inputs give finite results (NaN derivatives count as 0,
+    /// infinite ones as huge). max_anisotropy is clamped to [1, kEwaMaxAnisotropy], which
+    /// bounds the cost: at most ~1200 texels on the finer level and a quarter of that on
+    /// the coarser one, whatever the footprint.
+    void ewa(float u, float v, float dudx, float dudy, float dvdx, float dvdy, float *out,
+             float max_anisotropy = 8.f) const;
+    static constexpr float kEwaMaxAnisotropy = 64.f;
 
     size_t memory_bytes() const;
 
@@ -64,6 +82,8 @@ private:
         std::vector<float> data;
     };
     int wrap_index(int i, int n) const;
+    /// The EWA sum of one level for the covariance (sxx, sxy, syy) in that level's texels.
+    void ewa_level(int level, float u, float v, double sxx, double sxy, double syy, float *out) const;
 
     int m_channels = 0;
     WrapMode m_wrap = WrapMode::Repeat;
