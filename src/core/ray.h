@@ -4,6 +4,11 @@
 
 namespace meso {
 
+/// Largest stretch of a footprint by the 1/cos of a grazing tangent plane: the transfer of
+/// differentials onto a surface (and the camera approximation) caps 1/|cos theta| here, so
+/// footprints stay finite at grazing angles (the cap corresponds to cos theta = 1e-3).
+constexpr float MaxFootprintStretch = 1e3f;
+
 struct Ray {
     Vec3 o, d;
     float tmin = 0.f, tmax = Infinity;
@@ -13,13 +18,18 @@ struct Ray {
 };
 
 /// A ray plus the two offset rays of a one-pixel step in x and y on the image plane.
+/// `footprint_scale` remembers the factor the camera differentials were scaled by (the
+/// per-sample footprint); it travels with the path so that the camera-based approximation
+/// after rough scattering (Camera::approximate_dp_dxy) uses the same scale.
 struct RayDifferential : Ray {
     bool has_differentials = false;
+    float footprint_scale = 1.f;
     Vec3 rx_o, rx_d, ry_o, ry_d;
     RayDifferential() = default;
     explicit RayDifferential(const Ray &r) : Ray(r) {}
     /// Scale the differential offsets (pbrt-v4: by max(1/8, 1/sqrt(spp)) for supersampling).
     void scale_differentials(float s) {
+        footprint_scale *= s;
         rx_o = o + (rx_o - o) * s;
         ry_o = o + (ry_o - o) * s;
         rx_d = d + (rx_d - d) * s;

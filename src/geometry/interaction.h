@@ -7,6 +7,7 @@
 namespace meso {
 
 class Shape;
+class Camera;
 
 struct SurfaceInteraction {
     float t = Infinity;
@@ -15,6 +16,12 @@ struct SurfaceInteraction {
     Vec3 ns;          ///< interpolated shading normal (unit, world)
     Vec2 uv;
     Vec3 dpdu, dpdv;  ///< surface parameterisation derivatives (world)
+    /// Derivatives of the unit shading normal ns along u and v (world), for the transport of
+    /// ray differentials through curved specular surfaces. Meshes fill them from the
+    /// interpolated vertex normals, the analytic sphere with dp/du / r; zero (flat) where a
+    /// shape does not set them, e.g. shell-mapped micro-surfaces (bilinear patches whose
+    /// curvature is below the footprint scale anyway).
+    Vec3 dndu, dndv;
     Vec3 wo;          ///< direction towards the ray origin (unit, world)
     float p_error = 0.f; ///< absolute error bound of p (per component), set by the shape
     const Shape *shape = nullptr;
@@ -24,8 +31,12 @@ struct SurfaceInteraction {
     float dudx = 0, dudy = 0, dvdx = 0, dvdy = 0;
 
     /// Fills dpdx..dvdy from the ray's differentials (transfer to the tangent plane, then
-    /// solve the least-squares 2x2 for the uv derivatives). Leaves zeros if none.
-    void compute_differentials(const RayDifferential &ray);
+    /// solve the least-squares 2x2 for the uv derivatives). Where the ray has none (after
+    /// rough scattering) or the transfer fails (offset ray parallel to or leaving the
+    /// plane), uses camera->approximate_dp_dxy (pbrt-v4); leaves zeros if camera is null.
+    /// Always finite: the grazing 1/cos stretch is capped at MaxFootprintStretch and the uv
+    /// derivatives are clamped to +-1e8 (0 for degenerate dp/du, dp/dv).
+    void compute_differentials(const RayDifferential &ray, const Camera *camera = nullptr);
     /// Shading context with frame from ns and dpdu (flipped towards wo when `two_sided`).
     ShadingContext shading_context(bool two_sided) const;
     /// Origin offset along ng to the side of direction d, robust against self-intersection

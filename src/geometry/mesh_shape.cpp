@@ -101,6 +101,33 @@ void MeshShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float b
         Vec3 tg = m_mesh.tangents[i0] * b0 + m_mesh.tangents[i1] * bu + m_mesh.tangents[i2] * bv;
         if (length_squared(tg) > 0.f) si.dpdu = normalize(tg) * length(si.dpdu);
     }
+
+    // dn/du, dn/dv of the unit interpolated normal, for ray differentials through curved
+    // specular surfaces. The interpolated normal N is linear in the barycentrics, so for a
+    // tangent vector w = a e1 + b e2 (e1 = p1 - p0, e2 = p2 - p0, least squares) dN = a (n1 - n0)
+    // + b (n2 - n0), and the unit normal changes by (dN - ns (ns.dN)) / |N|. Mapping dp/du and
+    // dp/dv through this keeps dn/du consistent with whatever dp/du ended up (tangent frames
+    // included). Zero without vertex normals (flat) or for zero-area triangles.
+    si.dndu = si.dndv = Vec3();
+    if (m_has_normals && !degenerate) {
+        const Vec3 n0(v0[3], v0[4], v0[5]), n1(v1[3], v1[4], v1[5]), n2(v2[3], v2[4], v2[5]);
+        const Vec3 N = n0 * b0 + n1 * bu + n2 * bv;
+        const float len = length(N);
+        const Vec3 e1 = p1 - p0, e2 = p2 - p0, dn1 = n1 - n0, dn2 = n2 - n0;
+        const float g11 = dot(e1, e1), g12 = dot(e1, e2), g22 = dot(e2, e2);
+        const float gdet = g11 * g22 - g12 * g12;
+        if (len > 0.f && gdet > 1e-12f * g11 * g22 && std::isfinite(gdet)) {
+            auto dn_along = [&](Vec3 w) {
+                float c1 = dot(e1, w), c2 = dot(e2, w);
+                float a = (g22 * c1 - g12 * c2) / gdet, b = (g11 * c2 - g12 * c1) / gdet;
+                Vec3 dN = dn1 * a + dn2 * b;
+                return (dN - ns * dot(ns, dN)) / len;
+            };
+            si.dndu = dn_along(si.dpdu);
+            si.dndv = dn_along(si.dpdv);
+            if (!is_finite(si.dndu) || !is_finite(si.dndv)) si.dndu = si.dndv = Vec3();
+        }
+    }
 }
 
 PositionSample MeshShape::sample_area(float u_prim, Vec2 u) const {

@@ -50,6 +50,10 @@ public:
         si.dpdv = Vec3(n.z * std::cos(phi), n.z * std::sin(phi), -st) * (Pi * m_radius);
         if (!(st > 1e-6f)) coordinate_system(n, si.dpdu, si.dpdv);
         si.ng = si.ns = m_flip ? -n : n;
+        // The unit normal is (p - c) / r, so dn/du = (dp/du) / r (negated with the normal).
+        const float inv_r = (m_flip ? -1.f : 1.f) / m_radius;
+        si.dndu = si.dpdu * inv_r;
+        si.dndv = si.dpdv * inv_r;
     }
 
     float surface_area() const override { return 4.f * Pi * m_radius * m_radius; }

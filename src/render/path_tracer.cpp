@@ -1,34 +1,13 @@
 #include "render/path_tracer.h"
 #include <fmt/format.h>
 #include "geometry/shape.h"
+#include "render/differentials.h"
 #include "render/material.h"
 #include "sampling/sampler.h"
 #include "sampling/warp.h"
 #include "scene/scene.h"
 
 namespace meso {
-
-namespace {
-
-/// Mirror-reflects the ray differentials of `ray` at `si` for the reflected direction
-/// `wi` (Igehy 1999, pbrt-v3 SpecularReflect) treating the surface as locally flat
-/// (dn/dx = 0: exact for planar mirrors). Other scattering drops the differentials.
-void reflect_differentials(const RayDifferential &ray, const SurfaceInteraction &si, Vec3 n, Vec3 wi,
-                           RayDifferential &out) {
-    if (!ray.has_differentials || length_squared(si.dpdx) == 0.f) {
-        out.has_differentials = false;
-        return;
-    }
-    Vec3 wo = -ray.d;
-    out.rx_o = si.p + si.dpdx;
-    out.ry_o = si.p + si.dpdy;
-    Vec3 dwodx = -ray.rx_d - wo, dwody = -ray.ry_d - wo;
-    out.rx_d = wi - dwodx + n * (2.f * dot(dwodx, n));
-    out.ry_d = wi - dwody + n * (2.f * dot(dwody, n));
-    out.has_differentials = is_finite(out.rx_d) && is_finite(out.ry_d);
-}
-
-}  // namespace
 
 Spectrum PathTracer::li(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats) const {
     Spectrum L(0.f), beta(1.f);
@@ -75,7 +54,9 @@ Spectrum PathTracer::li(const Scene &scene, RayDifferential ray, Sampler &sample
         const Material *mat = si.shape->material.get();
         if (!mat) break;
         const bool two_sided = !mat->has_transmission();
-        si.compute_differentials(ray);
+        // Footprint at every bounce (exact transport after delta lobes, the camera-based
+        // approximation after rough ones: render/differentials.h).
+        if (m_differentials) si.compute_differentials(ray, scene.camera.get());
         ShadingContext ctx = si.shading_context(two_sided);
         const Vec3 wo = ctx.frame.to_local(si.wo);
         if (wo.z == 0.f && two_sided) break;
@@ -125,7 +106,9 @@ Spectrum PathTracer::li(const Scene &scene, RayDifferential ray, Sampler &sample
         if (bs.flags & BSDF_Transmission) eta_scale *= sqr(bs.eta);
 
         RayDifferential next(si.spawn_ray(wi));
-        if (bs.flags & BSDF_DeltaReflection) reflect_differentials(ray, si, ctx.frame.n, wi, next);
+        next.footprint_scale = ray.footprint_scale;
+        if (m_differentials && (bs.flags & BSDF_Delta))
+            specular_differentials(ray, si, ctx.frame.n, wi, bs.flags, bs.eta, next);
         ray = next;
 
         // Russian roulette on the throughput (with the eta^2 factor removed, pbrt-v4).

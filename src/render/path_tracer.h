@@ -5,6 +5,7 @@
 // max_depth counts path segments as in Mitsuba: 1 = emitters seen directly, 2 = direct
 // illumination, -1 = unbounded (roulette ends paths).
 #pragma once
+#include <cstdlib>
 #include "render/integrator.h"
 
 namespace meso {
@@ -20,6 +21,9 @@ private:
     int m_max_depth, m_rr_depth;
     bool m_hide_emitters;
     std::string m_name;
+    /// Ray-differential footprints at every hit (textures and LoD read them). The
+    /// environment variable MESO_NO_DIFFERENTIALS=1 turns them off, to measure their cost.
+    bool m_differentials = std::getenv("MESO_NO_DIFFERENTIALS") == nullptr;
 };
 
 }  // namespace meso

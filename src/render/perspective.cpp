@@ -50,6 +50,11 @@ public:
             m_half_h = t;
             m_half_w = t * aspect;
         }
+        // Camera placement and smallest pixel differentials for Camera::approximate_dp_dxy.
+        find_minimum_differentials(m_to_world.apply_point(Vec3(0, 0, 0)),
+                                   Frame(normalize(m_to_world.apply_vector(Vec3(1, 0, 0))),
+                                         normalize(m_to_world.apply_vector(Vec3(0, 1, 0))),
+                                         normalize(m_to_world.apply_vector(Vec3(0, 0, 1)))));
     }
 
     /// Camera-space direction (z = 1 plane) of a raster position.
