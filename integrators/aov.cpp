@@ -54,7 +54,7 @@ public:
             case Aov::Lod:
             case Aov::FootprintColor:
             case Aov::LodColor: {
-                si.compute_differentials(ray);
+                si.compute_differentials(ray, scene.camera.get());
                 double w = m_fp.resolution, h = m_fp.resolution;
                 si.shape->texel_grid(w, h);
                 const float texels = footprint_texels(si.dudx, si.dudy, si.dvdx, si.dvdy, w, h);
@@ -70,7 +70,7 @@ public:
             }
             case Aov::Albedo: {
                 if (!si.shape->material) return Spectrum(0.f);
-                si.compute_differentials(ray);
+                si.compute_differentials(ray, scene.camera.get());
                 return si.shape->material->albedo_hint(si.shading_context(true));
             }
         }

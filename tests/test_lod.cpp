@@ -101,4 +101,21 @@ TEST(LodAov, FootprintOfAPlaneFacingTheCamera) {
     // Off-centre pixels see the plane obliquely: wider footprints, still finite.
     EXPECT_GT(r.image.at(2, 2, 0), r.image.at(50, 50, 0));
     EXPECT_TRUE(std::isfinite(r.image.at(0, 0, 0)));
+
+    // Displaced (micro-facets tilted by up to ~30 degrees), seen at 60 degrees from the
+    // normal: the footprint is measured on the base surface, so it equals the flat plane's
+    // (heights move the hit by ~1% of the distance); projected onto the micro-facets it
+    // would change by tens of per cent.
+    auto oblique = [&](const char *scale) {
+        std::string t = scene;
+        auto swap = [&](const std::string &from, const std::string &to) { t.replace(t.find(from), from.size(), to); };
+        swap("\"origin\": [0, 0, 2]", "\"origin\": [0, -1.732, 1]");
+        swap("\"scale\": 0", scale);
+        return meso::test::render_scene(*meso::test::load_json_scene("lod_aov2.json", t), 1).image;
+    };
+    meso::Image flat = oblique("\"scale\": 0"), disp = oblique("\"scale\": 0.5");
+    double worst = 0;
+    for (int y = 40; y <= 60; ++y)
+        for (int x = 40; x <= 60; ++x) worst = std::max(worst, std::abs(disp.at(x, y, 0) / flat.at(x, y, 0) - 1.0));
+    EXPECT_LT(worst, 0.03);
 }

@@ -9,7 +9,8 @@ void SurfaceInteraction::compute_differentials(const RayDifferential &ray, const
     bool ok = false;
     if (ray.has_differentials) {
         // Intersect the offset rays with the tangent plane at p (Igehy 1999; pbrt-v3 10.1.1).
-        const Vec3 n = ng;
+        const bool macro = length_squared(n_footprint) > 0.f;
+        const Vec3 n = macro ? n_footprint : ng;
         const float ddx = dot(n, ray.rx_d), ddy = dot(n, ray.ry_d);
         const float tx = dot(n, p - ray.rx_o) / ddx, ty = dot(n, p - ray.ry_o) / ddy;
         // A negative or infinite t means the offset ray is parallel to or leaves the plane.
@@ -32,7 +33,8 @@ void SurfaceInteraction::compute_differentials(const RayDifferential &ray, const
     if (!ok) {
         dpdx = dpdy = Vec3();
         if (!camera) return;
-        camera->approximate_dp_dxy(p, ng, ray.footprint_scale, dpdx, dpdy);
+        camera->approximate_dp_dxy(p, length_squared(n_footprint) > 0.f ? n_footprint : ng, ray.footprint_scale, dpdx,
+                                   dpdy);
     }
     // Huge footprints: keep |dp| representable (length_squared finite) for whoever reads it.
     auto limit = [](Vec3 &dp) {
@@ -42,6 +44,8 @@ void SurfaceInteraction::compute_differentials(const RayDifferential &ray, const
     limit(dpdx);
     limit(dpdy);
     // Least-squares solve of [dpdu dpdv] (du, dv)^T = dp (pbrt-v4 SurfaceInteraction).
+    const bool macro_t = length_squared(n_footprint) > 0.f;
+    const Vec3 dpdu = macro_t ? dpdu_footprint : this->dpdu, dpdv = macro_t ? dpdv_footprint : this->dpdv;
     float a00 = dot(dpdu, dpdu), a01 = dot(dpdu, dpdv), a11 = dot(dpdv, dpdv);
     float det = a00 * a11 - a01 * a01;
     // Degenerate (parallel or zero) dp/du, dp/dv: no uv footprint rather than a huge one.

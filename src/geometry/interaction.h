@@ -22,6 +22,12 @@ struct SurfaceInteraction {
     /// shape does not set them, e.g. shell-mapped micro-surfaces (bilinear patches whose
     /// curvature is below the footprint scale anyway).
     Vec3 dndu, dndv;
+    /// Macro surface for footprints, when the hit is on microgeometry (shell-mapped
+    /// displacement): its normal and uv tangents. If n_footprint is non-zero,
+    /// compute_differentials transfers the offset rays to this plane and solves with these
+    /// tangents, so footprints measure the base surface in texels of the full map instead
+    /// of being projected onto tilted micro-facets.
+    Vec3 n_footprint, dpdu_footprint, dpdv_footprint;
     Vec3 wo;          ///< direction towards the ray origin (unit, world)
     float p_error = 0.f; ///< absolute error bound of p (per component), set by the shape
     const Shape *shape = nullptr;

@@ -330,6 +330,11 @@ void ShellShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float 
         };
         si.dpdu = col(cw, 0.0, hx * cw);
         si.dpdv = col(0.0, ch, hy * ch);
+        // Footprints are measured on the base surface (the h = const plane of this
+        // tetrahedron), in texels of the full tiled map (issue 4).
+        si.dpdu_footprint = col(cw, 0.0, 0.0);
+        si.dpdv_footprint = col(0.0, ch, 0.0);
+        si.n_footprint = normalize(mul3T(T.A, Vec3(0.f, 0.f, 1.f)));
         ok = is_finite(si.dpdu) && is_finite(si.dpdv) && length_squared(cross(si.dpdu, si.dpdv)) > 0.f;
     }
     if (!ok) coordinate_system(n, si.dpdu, si.dpdv);
