@@ -5,6 +5,8 @@
 #include "core/error.h"
 #include "render/lod.h"
 #include "render_test_util.h"
+#include <fmt/format.h>
+#include <cstdio>
 
 using namespace meso;
 
@@ -118,4 +120,107 @@ TEST(LodAov, FootprintOfAPlaneFacingTheCamera) {
     for (int y = 40; y <= 60; ++y)
         for (int x = 40; x <= 60; ++x) worst = std::max(worst, std::abs(disp.at(x, y, 0) / flat.at(x, y, 0) - 1.0));
     EXPECT_LT(worst, 0.03);
+}
+
+// LoD selection in the path tracer. A flat shell-mapped plane (64-texel map tiled 4x over a
+// plane 2 units wide: 128 texels per unit) faces the camera; level 0 is white-red, level 1
+// white-green (reflectance 1 in one channel), so under a constant environment a pixel's
+// green fraction is the weight of level 1. The footprint of the centre pixel at distance d
+// is 2 d tan(20 deg) / 101 * 128 * max(1/8, 1/sqrt(spp)) texels; distances are chosen for
+// footprints of 1, 2 and 4 texels, where the chain [1, 4] gives t = 0, 0.5 and 1.
+namespace {
+
+std::string lod_plane_scene(double distance, const char *blend, int spp, const char *extra = "") {
+    return fmt::format(R"({{
+      "camera": {{"type": "perspective", "origin": [0, 0, {}], "target": [0, 0, 0], "up": [0, 1, 0],
+                 "fov": 40, "width": 101, "height": 101}},
+      "integrator": {{"type": "path", "max_depth": 2}},
+      "sampler": {{"type": "independent", "sample_count": {}}},
+      "shapes": [{{"type": "rectangle",
+                  "displacement": {{"map": {{"generator": "fbm", "size": 64}}, "scale": 0, "tiling": 4}},
+                  "lod": {{"factors": [1, 4], "blend": "{}", "same_model": true {},
+                          "materials": [{{"type": "diffuse", "reflectance": [1, 0, 0]}},
+                                        {{"type": "diffuse", "reflectance": [0, 1, 0]}}]}}}}],
+      "lights": [{{"type": "constant", "radiance": 1}}]
+    }})",
+                       distance, spp, blend, extra);
+}
+
+double green_fraction(const meso::Image &img) {
+    double r = 0, g = 0;
+    for (int y = 48; y <= 52; ++y)
+        for (int x = 48; x <= 52; ++x) r += img.at(x, y, 0), g += img.at(x, y, 1);
+    return g / (r + g);
+}
+
+}  // namespace
+
+TEST(LodPath, LevelsSwitchAtTheExpectedDistances) {
+    const int spp = 256;
+    const double texels_per_unit_distance = 2.0 * std::tan(20.0 * 3.14159265358979 / 180.0) / 101.0 * 128.0 / 8.0;  // max(1/8, 1/sqrt(256))
+    for (const char *blend : {"blend", "stochastic"}) {
+        for (double w : {1.0, 2.0, 4.0}) {
+            const double d = w / texels_per_unit_distance, t = std::log(w) / std::log(4.0);
+            auto s = meso::test::load_json_scene("lod_path.json", lod_plane_scene(d, blend, spp));
+            meso::RenderResult r = meso::test::render_scene(*s, spp);
+            std::printf("%s: footprint %.0f texels: level-1 weight %.4f (expected %.4f)\n", blend, w, green_fraction(r.image), t);
+            EXPECT_NEAR(green_fraction(r.image), t, 0.03) << blend << " footprint " << w << " texels at distance " << d;
+            EXPECT_EQ(r.nan_count, 0);
+        }
+    }
+    // lod bias 2 makes the 2-texel distance select level 1 alone.
+    auto s = meso::test::load_json_scene("lod_path.json", lod_plane_scene(2.0 / texels_per_unit_distance, "blend", spp, R"(, "bias": 2)"));
+    EXPECT_NEAR(green_fraction(meso::test::render_scene(*s, spp).image), 1.0, 0.01);
+}
+
+// With every level the original model, an LoD render equals the plain render within noise.
+TEST(LodPath, SameModelLevelsAddNoBias) {
+    const char *base = R"({
+      "camera": {"type": "perspective", "origin": [0, 1.2, 2.2], "target": [0, 0, 0], "up": [0, 1, 0],
+                 "fov": 45, "width": 64, "height": 64},
+      "integrator": {"type": "path", "max_depth": 4},
+      "sampler": {"type": "independent", "sample_count": 16},
+      "shapes": [{"type": "rectangle", "to_world": {"rotate": {"axis": [1, 0, 0], "angle": -90}},
+                  "material": {"type": "conductor", "material": "Cu", "alpha": 0.2},
+                  "displacement": {"map": {"generator": "fbm", "size": 64, "amplitude": 0.05}, "scale": 1, "tiling": 4}
+                  @LOD}],
+      "lights": [{"type": "directional", "direction": [-0.3, -1, -0.2], "irradiance": 3}, {"type": "constant", "radiance": 0.3}]
+    })";
+    auto with = [&](const std::string &lod) {
+        std::string s = base;
+        s.replace(s.find("@LOD"), 4, lod);
+        return meso::test::load_json_scene("lod_nobias.json", s);
+    };
+    auto plain = with(""), lod = with(R"(, "lod": {"factors": [1, 2, 8], "same_model": true})");
+    meso::RenderResult a = meso::test::render_scene(*plain, 16, 0, 21), b = meso::test::render_scene(*plain, 16, 0, 22),
+                       c = meso::test::render_scene(*lod, 16, 0, 23);
+    double noise = meso::compute_metrics(b.image, a.image).relmse, cross = meso::compute_metrics(c.image, a.image).relmse;
+    std::printf("relMSE plain vs plain %.5f, LoD (same model) vs plain %.5f\n", noise, cross);
+    EXPECT_LT(cross, 1.15 * noise);
+}
+
+// Box-downsampled levels load, render finite, and bad chains are located errors.
+TEST(LodPath, DownsampledLevelsAndErrors) {
+    std::string json = lod_plane_scene(6.0, "stochastic", 4);
+    json.replace(json.find(R"("same_model": true)"), 18, R"("same_model": false)");
+    auto s = meso::test::load_json_scene("lod_down.json", json);
+    EXPECT_EQ(s->shapes.size(), 2u);
+    EXPECT_EQ(meso::test::render_scene(*s, 4).nan_count, 0);
+    auto expect_error = [](std::string j, const std::string &from, const std::string &to, const std::string &needle) {
+        j.replace(j.find(from), from.size(), to);
+        try {
+            meso::test::load_json_scene("lod_bad.json", j);
+            ADD_FAILURE() << "no error for " << to;
+        } catch (const meso::MesoError &e) {
+            EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+        }
+    };
+    const std::string good = lod_plane_scene(6.0, "stochastic", 4);
+    expect_error(good, R"("factors": [1, 4])", R"("factors": [2, 4])", "level 0 is the original");
+    expect_error(good, R"("factors": [1, 4])", R"("factors": [1, 4, 3])", "increase");
+    expect_error(good, R"("same_model": true)", R"("same_model": false, "bias": 0)", "bias");
+    expect_error(good, R"("factors": [1, 4], "blend": "stochastic", "same_model": true)",
+                 R"("factors": [1, 3], "blend": "stochastic", "same_model": false)", "must be an integer dividing");
+    expect_error(good, R"("blend": "stochastic")", R"("blend": "both")", "\"stochastic\" or \"blend\"");
+    expect_error(good, R"("scale": 0, "tiling": 4})", R"("scale": 0, "tiling": 4, "mode": "tessellate"})", "shell-mapped");
 }

@@ -1,5 +1,6 @@
 // Rays with optional differentials (Igehy 1999) for texture footprints.
 #pragma once
+#include <cstdint>
 #include "core/vec.h"
 
 namespace meso {
@@ -9,9 +10,14 @@ namespace meso {
 /// footprints stay finite at grazing angles (the cap corresponds to cos theta = 1e-3).
 constexpr float MaxFootprintStretch = 1e3f;
 
+/// Embree ray mask of a ray that sees LoD level `level` (0..31): shapes without LoD are
+/// seen by every ray, level k of an LoD chain only by rays with bit k (render/lod.h).
+constexpr uint32_t lod_ray_mask(int level) { return 1u << level; }
+
 struct Ray {
     Vec3 o, d;
     float tmin = 0.f, tmax = Infinity;
+    uint32_t mask = lod_ray_mask(0);  ///< which LoD level this ray sees (default: the original)
     Ray() = default;
     Ray(Vec3 o_, Vec3 d_, float tmax_ = Infinity) : o(o_), d(d_), tmax(tmax_) {}
     Vec3 operator()(float t) const { return o + d * t; }

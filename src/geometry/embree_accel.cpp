@@ -32,6 +32,9 @@ EmbreeAccel::~EmbreeAccel() {
 
 void EmbreeAccel::add(const Shape *shape) {
     RTCGeometry g = shape->build_embree(m_device);
+    // LoD level k of a chain is seen only by rays with mask bit k; other shapes by all.
+    rtcSetGeometryMask(g, shape->lod ? lod_ray_mask(shape->lod_level) : 0xFFFFFFFFu);
+    rtcCommitGeometry(g);
     unsigned id = rtcAttachGeometry(m_scene, g);
     rtcReleaseGeometry(g);
     if (id >= m_shapes.size()) m_shapes.resize(id + 1, nullptr);
@@ -55,7 +58,7 @@ static void setup_ray(const Ray &ray, RTCRay &r) {
     r.dir_z = ray.d.z;
     r.tnear = ray.tmin;
     r.tfar = ray.tmax;
-    r.mask = 0xFFFFFFFFu;
+    r.mask = ray.mask;
     r.time = 0.f;
     r.flags = 0;
     r.id = 0;

@@ -102,6 +102,20 @@ float Heightfield::eval(double x, double y, float &dhdx, float &dhdy) const {
     return h00 + a * (h10 - h00) + b * (h01 - h00) + a * b * g;
 }
 
+HeightMap Heightfield::box_downsampled(int f) const {
+    if (f < 1 || m_w % f != 0 || m_h % f != 0)
+        throw MesoError(fmt::format("cannot box-downsample a {}x{} map by {} (the factor must divide both sizes)", m_w, m_h, f));
+    HeightMap out(m_w / f, m_h / f);
+    for (int j = 0; j < out.height; ++j)
+        for (int i = 0; i < out.width; ++i) {
+            double sum = 0;
+            for (int b = 0; b < f; ++b)
+                for (int a = 0; a < f; ++a) sum += m_heights[size_t(j * f + b) * m_w + size_t(i * f + a)];
+            out.at(i, j) = float(sum / (double(f) * f));
+        }
+    return out;
+}
+
 size_t Heightfield::memory_bytes() const {
     size_t bytes = m_heights.size() * sizeof(float);
     for (const Level &l : m_levels) bytes += l.minmax.size() * sizeof(float);

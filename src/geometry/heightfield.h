@@ -50,6 +50,12 @@ public:
     /// Any hit with t in (tmin, tmax).
     bool occluded(Vec3 o, Vec3 d, float tmin, float tmax, int64_t offset_x = 0, int64_t offset_y = 0) const;
 
+    /// The heights box-filtered by `factor` (each output vertex is the mean of a factor x
+    /// factor block of vertices): the stand-in for downsampled LoD levels until the
+    /// prefiltering issue's least-squares heights exist. Throws MesoError unless factor
+    /// divides both sizes.
+    HeightMap box_downsampled(int factor) const;
+
     /// Base heights and pyramid: independent of how often the map is tiled.
     size_t memory_bytes() const;
 

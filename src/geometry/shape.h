@@ -11,6 +11,7 @@ namespace meso {
 
 class Material;
 class Light;
+struct LodGroup;
 
 struct PositionSample {
     Vec3 p, n;
@@ -41,6 +42,9 @@ public:
 
     std::shared_ptr<Material> material;
     std::shared_ptr<Light> emitter;  ///< area light, or null
+    /// LoD chain this shape is level `lod_level` of (null: no LoD; seen by every ray).
+    std::shared_ptr<const LodGroup> lod;
+    int lod_level = 0;
 };
 
 }  // namespace meso

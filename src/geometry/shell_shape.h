@@ -43,6 +43,12 @@ public:
     std::string to_string() const override;
 
     const Displacement &displacement() const { return m_disp; }
+    /// The same shell (base mesh, tiling) over another heightfield (an LoD level).
+    std::shared_ptr<ShellShape> with_field(std::shared_ptr<const Heightfield> field, const std::string &name) const {
+        Displacement d = m_disp;
+        d.field = std::move(field);
+        return std::make_shared<ShellShape>(m_base, std::move(d), name);
+    }
     bool texel_grid(double &width, double &height) const override {
         width = double(m_disp.field->width()) * m_disp.tiling_u;
         height = double(m_disp.field->height()) * m_disp.tiling_v;

@@ -53,4 +53,19 @@ private:
     std::vector<float> m_log;  ///< log of each factor
 };
 
+enum class LodBlend { Stochastic, Blend };
+
+/// The levels of one LoD shape (each level is its own Shape with `lod` pointing here and
+/// `lod_level` = its index): the chain, the bias, how levels are combined, and the texel
+/// grid of level 0 (the original map, tiling included) that footprints are measured in.
+/// The path tracer picks the level from the camera ray's first hit (one level per path,
+/// used by all its rays, as paper 004 picks one per pixel); paths whose camera ray does not
+/// hit an LoD shape see level 0.
+struct LodGroup {
+    LodChain chain;
+    float bias = 1.f;
+    LodBlend blend = LodBlend::Stochastic;
+    double texel_w = 1, texel_h = 1;
+};
+
 }  // namespace meso

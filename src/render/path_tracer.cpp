@@ -2,6 +2,7 @@
 #include <fmt/format.h>
 #include "geometry/shape.h"
 #include "render/differentials.h"
+#include "render/lod.h"
 #include "render/material.h"
 #include "sampling/sampler.h"
 #include "sampling/warp.h"
@@ -10,6 +11,12 @@
 namespace meso {
 
 Spectrum PathTracer::li(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats) const {
+    return trace(scene, ray, sampler, stats, -1);
+}
+
+Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats,
+                           int level) const {
+    if (level >= 0) ray.mask = lod_ray_mask(level);
     Spectrum L(0.f), beta(1.f);
     bool specular_bounce = true;  // camera rays count as specular: no MIS for emitters seen directly
     float prev_pdf = 0.f;
@@ -20,6 +27,25 @@ Spectrum PathTracer::li(const Scene &scene, RayDifferential ray, Sampler &sample
         SurfaceInteraction si;
         ++stats.rays;
         bool hit = scene.intersect(ray, si);
+        if (depth == 0 && level < 0 && hit && si.shape->lod) {
+            // LoD: the footprint of the camera ray on the original surface picks the level
+            // (paper 004 §7.2); the whole path then sees only that level.
+            const LodGroup &g = *si.shape->lod;
+            si.compute_differentials(ray, scene.camera.get());
+            const float w = footprint_texels(si.dudx, si.dudy, si.dvdx, si.dvdy, g.texel_w, g.texel_h);
+            const LodSelection sel = g.chain.select(w, g.bias);
+            if (sel.hi != sel.lo && g.blend == LodBlend::Blend)
+                return trace(scene, ray, sampler, stats, sel.lo) * (1.f - sel.t) +
+                       trace(scene, ray, sampler, stats, sel.hi) * sel.t;
+            int chosen = sel.lo;
+            if (sel.hi != sel.lo) chosen = sampler.get_1d() < sel.t ? sel.hi : sel.lo;
+            if (chosen != 0) {
+                ray.mask = lod_ray_mask(chosen);
+                si = SurfaceInteraction();
+                ++stats.rays;
+                hit = scene.intersect(ray, si);
+            }
+        }
         const bool count_emission = !(depth == 0 && m_hide_emitters);
 
         if (!hit) {
@@ -76,6 +102,7 @@ Spectrum PathTracer::li(const Scene &scene, RayDifferential ray, Sampler &sample
                 Spectrum f = ok ? mat->eval(ctx, wo, wi) : Spectrum(0.f);
                 if (!f.is_black()) {
                     Ray shadow = std::isinf(ls.dist) ? si.spawn_ray(ls.wi) : si.spawn_ray_to(si.p + ls.wi * ls.dist);
+                    shadow.mask = ray.mask;  // the path's LoD level
                     ++stats.rays;
                     ++stats.shadow_rays;
                     if (!scene.occluded(shadow)) {
@@ -107,6 +134,7 @@ Spectrum PathTracer::li(const Scene &scene, RayDifferential ray, Sampler &sample
 
         RayDifferential next(si.spawn_ray(wi));
         next.footprint_scale = ray.footprint_scale;
+        next.mask = ray.mask;
         if (m_differentials && (bs.flags & BSDF_Delta))
             specular_differentials(ray, si, ctx.frame.n, wi, bs.flags, bs.eta, next);
         ray = next;

@@ -18,6 +18,10 @@ public:
     std::string to_string() const override;
 
 private:
+    /// One path. `level` < 0: the LoD level is chosen from the camera ray's first hit on an
+    /// LoD shape (stochastically, or by tracing both neighbouring levels and blending);
+    /// >= 0: every ray of the path sees that level (render/lod.h).
+    Spectrum trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats, int level) const;
     int m_max_depth, m_rr_depth;
     bool m_hide_emitters;
     std::string m_name;

@@ -16,6 +16,7 @@
 #include "geometry/shape.h"
 #include "geometry/shell_shape.h"
 #include "render/light.h"
+#include "render/lod.h"
 #include "render/material.h"
 #include "scene/gltf.h"
 #include "scene/overrides.h"
@@ -153,6 +154,55 @@ struct DeclGuard {
     }
 };
 
+/// A shape's "lod" block: the chain's levels 1.. as shell shapes over box-downsampled (or,
+/// with same_model, the original) heightfields, each seen only by rays of its level.
+void add_lod_levels(const Properties &lp, const std::shared_ptr<Shape> &shape, Scene &scene) {
+    auto shell = std::dynamic_pointer_cast<ShellShape>(shape);
+    if (!shell) lp.fail("a LoD chain needs a shell-mapped displacement (\"displacement\": {..., \"mode\": \"shell\"})");
+    std::vector<float> factors = lp.get_floats("factors");
+    if (factors.empty() || factors[0] != 1.f) lp.fail("factors", "expected [1, f1, f2, ...]: level 0 is the original map (factor 1)");
+    if (factors.size() > 32) lp.fail("factors", "at most 32 levels");
+    auto group = std::make_shared<LodGroup>();
+    try {
+        group->chain = LodChain(factors);
+    } catch (const MesoError &e) {
+        lp.fail("factors", e.what());
+    }
+    group->bias = lp.get_float("bias", 1.f);
+    if (!(group->bias > 0.f) || !std::isfinite(group->bias)) lp.fail("bias", "expected a positive number (footprint scale)");
+    std::string blend = lp.get_string("blend", "stochastic");
+    if (blend == "stochastic") group->blend = LodBlend::Stochastic;
+    else if (blend == "blend") group->blend = LodBlend::Blend;
+    else lp.fail("blend", fmt::format("expected \"stochastic\" or \"blend\", got \"{}\"", blend));
+    const bool same_model = lp.get_bool("same_model", false);
+    std::vector<std::shared_ptr<Material>> materials;
+    if (lp.has("materials")) {
+        for (const Properties &m : lp.children("materials")) materials.push_back(create_material(m));
+        if (materials.size() != factors.size())
+            lp.fail("materials", fmt::format("expected one material per level ({}), got {}", factors.size(), materials.size()));
+        shape->material = materials[0];
+    }
+    shell->texel_grid(group->texel_w, group->texel_h);
+    shape->lod = group;
+    shape->lod_level = 0;
+    for (size_t k = 1; k < factors.size(); ++k) {
+        std::shared_ptr<const Heightfield> field = shell->displacement().field;
+        if (!same_model) {
+            const float f = factors[k];
+            if (f != std::floor(f) || field->width() % int(f) != 0 || field->height() % int(f) != 0)
+                lp.fail("factors", fmt::format("level {}: factor {} must be an integer dividing the map size {}x{} "
+                                               "(levels are box-downsampled)", k, f, field->width(), field->height()));
+            field = std::make_shared<Heightfield>(field->box_downsampled(int(f)), 1.f, 0.f);
+        }
+        auto level = shell->with_field(field, fmt::format("{} LoD level {} (x{})", lp.path(), k, factors[k]));
+        level->material = materials.empty() ? shape->material : materials[k];
+        level->lod = group;
+        level->lod_level = int(k);
+        scene.shapes.push_back(level);
+    }
+    lp.check_unused("lod");
+}
+
 std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, size_t max_triangles) {
     auto ctx = std::make_shared<LoadContext>();
     ctx->max_triangles = max_triangles;
@@ -220,6 +270,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, siz
                 if (emitter->is_delta() || emitter->is_infinite())
                     ep.fail("type", fmt::format("light type '{}' cannot be the emitter of a shape (use an 'area' light)", ep.type()));
             }
+            std::optional<Properties> lod = p.optional_child("lod");  // read before the shape checks its keys
             std::shared_ptr<Shape> shape = create_shape(p);
             shape->material = material;
             if (emitter && dynamic_cast<const ShellShape *>(shape.get()))
@@ -231,6 +282,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, siz
                 scene->lights.push_back(emitter);
             }
             scene->shapes.push_back(shape);
+            if (lod) add_lod_levels(*lod, shape, *scene);
         }
     }
 
