@@ -224,3 +224,26 @@ TEST(LodPath, DownsampledLevelsAndErrors) {
     expect_error(good, R"("blend": "stochastic")", R"("blend": "both")", "\"stochastic\" or \"blend\"");
     expect_error(good, R"("scale": 0, "tiling": 4})", R"("scale": 0, "tiling": 4, "mode": "tessellate"})", "shell-mapped");
 }
+
+// A path at a level beyond a shorter chain still sees that chain's last level; each level
+// of a chain is seen only by its own rays otherwise.
+TEST(LodPath, ShorterChainsAreSeenAtTheirLastLevel) {
+    auto s = meso::test::load_json_scene("lod_masks.json", R"({
+      "camera": {"type": "perspective", "width": 8, "height": 8},
+      "shapes": [{"type": "rectangle", "to_world": {"translate": [-2, 0, 0]},
+                  "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1},
+                  "lod": {"factors": [1, 2, 4]}},
+                 {"type": "rectangle", "to_world": {"translate": [2, 0, 0]},
+                  "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1},
+                  "lod": {"factors": [1, 2]}}]
+    })");
+    for (float x : {-2.f, 2.f})
+        for (int level = 0; level < 3; ++level) {
+            meso::Ray r(meso::Vec3(x, 0.1f, 5.f), meso::Vec3(0, 0, -1));
+            r.mask = meso::lod_ray_mask(level);
+            meso::SurfaceInteraction si;
+            ASSERT_TRUE(s->intersect(r, si)) << x << " level " << level;
+            const int expected = x > 0 && level > 1 ? 1 : level;
+            EXPECT_EQ(si.shape->lod_level, expected) << x << " level " << level;
+        }
+}

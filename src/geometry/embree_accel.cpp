@@ -4,6 +4,7 @@
 #include <fmt/format.h>
 #include "core/error.h"
 #include "geometry/shape.h"
+#include "render/lod.h"
 
 namespace meso {
 
@@ -32,8 +33,15 @@ EmbreeAccel::~EmbreeAccel() {
 
 void EmbreeAccel::add(const Shape *shape) {
     RTCGeometry g = shape->build_embree(m_device);
-    // LoD level k of a chain is seen only by rays with mask bit k; other shapes by all.
-    rtcSetGeometryMask(g, shape->lod ? lod_ray_mask(shape->lod_level) : 0xFFFFFFFFu);
+    // LoD level k of a chain is seen only by rays with mask bit k, its last level also by
+    // rays of every higher level (a path at level 3 still sees a 2-level chain's coarsest
+    // model); other shapes by all rays.
+    uint32_t mask = 0xFFFFFFFFu;
+    if (shape->lod) {
+        const int k = shape->lod_level;
+        mask = k + 1 == shape->lod->chain.levels() ? ~(lod_ray_mask(k) - 1u) : lod_ray_mask(k);
+    }
+    rtcSetGeometryMask(g, mask);
     rtcCommitGeometry(g);
     unsigned id = rtcAttachGeometry(m_scene, g);
     rtcReleaseGeometry(g);
