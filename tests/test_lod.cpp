@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 #include "core/error.h"
+#include "geometry/shape.h"
 #include "render/lod.h"
 #include "render_test_util.h"
 #include <fmt/format.h>
