@@ -1,0 +1,108 @@
+// Slope-moment maps: exact per-cell moments of the bilinear patches against dense numerical
+// integration of the heightfield's own derivatives, area-average mip levels, units.
+#include <gtest/gtest.h>
+#include <cmath>
+#include "core/error.h"
+#include "sampling/rng.h"
+#include "texture/slope_moments.h"
+
+using namespace meso;
+
+namespace {
+
+HeightMap noise_map(int w, int h, uint64_t seed) {
+    HeightMap m(w, h);
+    PCG32 rng(seed);
+    for (float &v : m.h) v = rng.next_float() * 2.f - 1.f;
+    return m;
+}
+
+/// Moments of (dh/du, dh/dv) over [x0, x0 + nx] x [y0, y0 + ny] cells by an n x n midpoint
+/// grid per cell on eval()'s analytic derivatives (independent of the closed forms).
+void dense_moments(const Heightfield &hf, int x0, int y0, int nx, int ny, double su, double sv, double out[5]) {
+    const int n = 64;
+    for (int k = 0; k < 5; ++k) out[k] = 0;
+    for (int cy = 0; cy < ny; ++cy)
+        for (int cx = 0; cx < nx; ++cx)
+            for (int b = 0; b < n; ++b)
+                for (int a = 0; a < n; ++a) {
+                    float dx, dy;
+                    hf.eval(x0 + cx + (a + 0.5) / n, y0 + cy + (b + 0.5) / n, dx, dy);
+                    const double x = dx * su, y = dy * sv;
+                    out[0] += x, out[1] += y, out[2] += x * x, out[3] += y * y, out[4] += x * y;
+                }
+    for (int k = 0; k < 5; ++k) out[k] /= double(n) * n * nx * ny;
+}
+
+}  // namespace
+
+TEST(SlopeMoments, CellsMatchDenseIntegration) {
+    Heightfield hf(noise_map(13, 9, 5), 0.3f, 0.1f);
+    const double tile_u = 0.25, tile_v = 0.5;  // tiling 4 x 2: slopes per uv = per cell * 52, * 18
+    MipMap m = build_slope_moments(hf, tile_u, tile_v);
+    ASSERT_EQ(m.channels(), 5);
+    for (int j = 0; j < 9; ++j)
+        for (int i = 0; i < 13; ++i) {
+            double ref[5];
+            dense_moments(hf, i, j, 1, 1, 13 / tile_u, 9 / tile_v, ref);
+            const float *t = m.texel(0, i, j);
+            const double scale = std::max(1.0, std::abs(ref[2]) + std::abs(ref[3]));
+            // The n-point midpoint rule integrates (e + g b)^2 low by exactly g^2 / (12 n^2);
+            // linear terms and the separable product x y it integrates exactly.
+            const double g = double(hf.vertex(i, j)) + hf.vertex(i + 1, j + 1) - hf.vertex(i + 1, j) - hf.vertex(i, j + 1);
+            const double bias[5] = {0, 0, sqr(g * 13 / tile_u) / (12.0 * 64 * 64), sqr(g * 9 / tile_v) / (12.0 * 64 * 64), 0};
+            for (int k = 0; k < 5; ++k)
+                EXPECT_NEAR(t[k], ref[k] + bias[k], 1e-5 * scale) << "cell " << i << "," << j << " moment " << k;
+        }
+}
+
+TEST(SlopeMoments, CoarseLevelsHoldTheMomentsOfEverythingBelow) {
+    Heightfield hf(noise_map(32, 32, 9), 1.f, 0.f);
+    MipMap m = build_slope_moments(hf);
+    // Level 2 texel (1, 3) covers cells [4, 8) x [12, 16).
+    double ref[5];
+    dense_moments(hf, 4, 12, 4, 4, 32, 32, ref);
+    const float *t = m.texel(2, 1, 3);
+    // Midpoint bias of the squared terms: at most max g^2 / (12 n^2) (g <= 4 here, 32 cells/uv).
+    const double bias_bound = sqr(4.0 * 32) / (12.0 * 64 * 64);
+    for (int k = 0; k < 5; ++k) EXPECT_NEAR(t[k], ref[k], 1e-5 * (std::abs(ref[2]) + std::abs(ref[3])) + bias_bound) << k;
+    // A periodic map has zero mean slope; the variance under a texel grows with the level.
+    const float *top = m.texel(m.levels() - 1, 0, 0);
+    EXPECT_NEAR(top[MomentX], 0.f, 1e-3f * std::sqrt(top[MomentXX]));
+    EXPECT_NEAR(top[MomentY], 0.f, 1e-3f * std::sqrt(top[MomentYY]));
+    double prev = 0;
+    for (int l = 0; l < m.levels(); ++l) {
+        double var = 0;
+        for (int y = 0; y < m.height(l); ++y)
+            for (int x = 0; x < m.width(l); ++x) {
+                const float *q = m.texel(l, x, y);
+                var += q[MomentXX] - double(q[MomentX]) * q[MomentX];
+            }
+        var /= double(m.width(l)) * m.height(l);
+        EXPECT_GE(var, prev - 1e-6) << "level " << l;
+        prev = var;
+    }
+}
+
+TEST(SlopeMoments, TiltedPlaneHasItsSlopeAndNoVariance) {
+    HeightMap ramp(16, 16);
+    for (int j = 0; j < 16; ++j)
+        for (int i = 0; i < 16; ++i) ramp.at(i, j) = 0.5f * i - 0.25f * j;
+    Heightfield hf(ramp, 1.f, 0.f);
+    MipMap m = build_slope_moments(hf);  // one tile over uv [0,1]: 16 cells per unit uv
+    for (int j = 0; j < 15; ++j)
+        for (int i = 0; i < 15; ++i) {  // the last row/column wraps onto the ramp's seam
+            const float *t = m.texel(0, i, j);
+            EXPECT_NEAR(t[MomentX], 8.f, 1e-4f);
+            EXPECT_NEAR(t[MomentY], -4.f, 1e-4f);
+            EXPECT_NEAR(t[MomentXX], 64.f, 1e-3f);
+            EXPECT_NEAR(t[MomentYY], 16.f, 1e-3f);
+            EXPECT_NEAR(t[MomentXY], -32.f, 1e-3f);
+        }
+}
+
+TEST(SlopeMoments, BadTileSizes) {
+    Heightfield hf(noise_map(4, 4, 1), 1.f, 0.f);
+    EXPECT_THROW(build_slope_moments(hf, 0.0, 1.0), MesoError);
+    EXPECT_THROW(build_slope_moments(hf, 1.0, std::nan("")), MesoError);
+}
