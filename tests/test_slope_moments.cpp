@@ -5,6 +5,7 @@
 #include "core/error.h"
 #include "sampling/rng.h"
 #include "texture/slope_moments.h"
+#include <vector>
 
 using namespace meso;
 
@@ -105,4 +106,54 @@ TEST(SlopeMoments, BadTileSizes) {
     Heightfield hf(noise_map(4, 4, 1), 1.f, 0.f);
     EXPECT_THROW(build_slope_moments(hf, 0.0, 1.0), MesoError);
     EXPECT_THROW(build_slope_moments(hf, 1.0, std::nan("")), MesoError);
+}
+
+// Paper 000 eq. (12) is the moment form of the linear map x = u_x U + v_x V,
+// y = u_y U + v_y V: applied to the empirical moments of samples it must give the empirical
+// mean and covariance of the mapped samples (an identity, so the tolerance is round-off).
+TEST(SlopeMoments, TangentFrameTransformIsTheLinearMapOfTheSlopes) {
+    PCG32 rng(17);
+    const int n = 20000;
+    std::vector<double> U(n), V(n);
+    for (int k = 0; k < n; ++k) {  // correlated, non-centred slopes
+        double a = std::sqrt(-2 * std::log(1 - rng.next_float())) * std::cos(2 * 3.14159265 * rng.next_float());
+        double b = std::sqrt(-2 * std::log(1 - rng.next_float())) * std::cos(2 * 3.14159265 * rng.next_float());
+        U[k] = 0.3 + 0.5 * a;
+        V[k] = -0.2 + 0.4 * a + 0.2 * b;
+    }
+    double m[5] = {0, 0, 0, 0, 0};
+    for (int k = 0; k < n; ++k) m[0] += U[k], m[1] += V[k], m[2] += U[k] * U[k], m[3] += V[k] * V[k], m[4] += U[k] * V[k];
+    float mf[5];
+    for (int c = 0; c < 5; ++c) mf[c] = float(m[c] / n);
+    const double ux = 0.7, vx = -0.4, uy = 0.25, vy = 1.3, eta = 1.5, base = 0.01;
+    SlopeGaussian g = slope_gaussian(mf, ux, vx, uy, vy, eta, base);
+    double sx = 0, sy = 0, sxx = 0, syy = 0, sxy = 0;
+    for (int k = 0; k < n; ++k) {
+        double x = eta * (ux * U[k] + vx * V[k]), y = eta * (uy * U[k] + vy * V[k]);
+        sx += x, sy += y, sxx += x * x, syy += y * y, sxy += x * y;
+    }
+    sx /= n, sy /= n;
+    EXPECT_NEAR(g.mx, sx, 1e-5);
+    EXPECT_NEAR(g.my, sy, 1e-5);
+    EXPECT_NEAR(g.sxx, sxx / n - sx * sx + base, 1e-4);
+    EXPECT_NEAR(g.syy, syy / n - sy * sy + base, 1e-4);
+    EXPECT_NEAR(g.sxy, sxy / n - sx * sy, 1e-4);
+}
+
+TEST(SlopeMoments, DistortionFromTheParameterisation) {
+    // Stretched and sheared: x = 2u + 0.5v, y = 0.5v (dp/du = (2,0,0), dp/dv = (0.5,0.5,0)).
+    const double dpdu[3] = {2, 0, 0}, dpdv[3] = {0.5, 0.5, 0}, t[3] = {1, 0, 0}, b[3] = {0, 1, 0};
+    double ux, vx, uy, vy;
+    ASSERT_TRUE(uv_per_tangent(dpdu, dpdv, t, b, ux, vx, uy, vy));
+    // J * M = I with M = [[2, 0.5], [0, 0.5]].
+    EXPECT_NEAR(ux * 2 + uy * 0, 1.0, 1e-12);
+    EXPECT_NEAR(ux * 0.5 + uy * 0.5, 0.0, 1e-12);
+    EXPECT_NEAR(vx * 2 + vy * 0, 0.0, 1e-12);
+    EXPECT_NEAR(vx * 0.5 + vy * 0.5, 1.0, 1e-12);
+    // A slope of 1 per unit u on a surface stretched 2x along x is 0.5 per unit x.
+    const float m[5] = {1, 0, 1, 0, 0};
+    EXPECT_NEAR(slope_gaussian(m, 0.5, 0, 0, 1).mx, 0.5, 1e-12);
+    const double zero[3] = {0, 0, 0};
+    EXPECT_FALSE(uv_per_tangent(zero, dpdv, t, b, ux, vx, uy, vy));
+    EXPECT_EQ(ux, 0.0);
 }
