@@ -12,8 +12,10 @@
 //
 // Note: for a non-zero mean, the paper's Lambda shifts nu by the mean slope but keeps the
 // centred prefactor; the exact Smith integral tan(theta) int_{cot theta} (x - cot theta)
-// P2(x) dx differs from it by the factor (cot theta - mu) / cot theta. meso follows the
-// paper (lambda()); lambda_smith() is the exact integral, for comparison.
+// P2(x) dx (lambda_smith()) differs from it by the factor (cot theta - mu) / cot theta.
+// The paper's form is the consistent one with its renormalisation: int D(m) <m, wo> dm =
+// (n_meso . wo) / (n_meso . w_g) (1 + lambda(wo)) holds for it (tested), so eq. (16)
+// integrates to one; lambda_smith() is kept for comparison only.
 //
 // Degenerate covariances are regularised: variances at least `min_variance`, and the
 // correlation clamped to |rho| <= 1 - 1e-6, so Sigma is always invertible.
