@@ -32,23 +32,26 @@ Vec3 dir(double theta, double phi) {
     return Vec3(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)), float(std::cos(theta)));
 }
 
+/// Midpoint rule over the upper hemisphere in (cos theta, phi) with nt x np cells.
+template <typename F> double hemisphere_integral(F f, int nt, int np) {
+    double sum = 0;
+    for (int i = 0; i < nt; ++i) {
+        const double ct = (i + 0.5) / nt, st = std::sqrt(1 - ct * ct);
+        for (int j = 0; j < np; ++j) {
+            const double phi = 2 * kPi * (j + 0.5) / np;
+            sum += f(Vec3(float(st * std::cos(phi)), float(st * std::sin(phi)), float(ct)));
+        }
+    }
+    return sum * (1.0 / nt) * (2 * kPi / np);
+}
+
 }  // namespace
 
 // int D(m) m.z dm = 1 over the hemisphere (eq. 10), by a midpoint rule in (cos theta, phi).
 TEST(GaussianSlopes, NdfIsNormalised) {
     for (const SlopeGaussian &g : kCases) {
         GaussianSlopes d(g);
-        const int nt = 2000, np = 1000;
-        double sum = 0;
-        for (int i = 0; i < nt; ++i) {
-            const double ct = (i + 0.5) / nt, st = std::sqrt(1 - ct * ct);
-            for (int j = 0; j < np; ++j) {
-                const double phi = 2 * kPi * (j + 0.5) / np;
-                Vec3 m(float(st * std::cos(phi)), float(st * std::sin(phi)), float(ct));
-                sum += d.D(m) * ct;
-            }
-        }
-        sum *= (1.0 / nt) * (2 * kPi / np);
+        const double sum = hemisphere_integral([&](Vec3 m) { return d.D(m) * m.z; }, 2000, 1000);
         EXPECT_NEAR(sum, 1.0, 2e-3) << g.mx << " " << g.my << " " << g.sxx;
     }
 }
@@ -171,6 +174,7 @@ TEST(GaussianSlopes, StiffParametersStayFinite) {
 // (lambda_smith) breaks it at grazing angles, which is why meso's materials use lambda().
 TEST(GaussianSlopes, ProjectedAreaIdentityHoldsForThePapersLambda) {
     const SlopeGaussian cases[] = {make(0.5, -0.2, 0.05, 0.08, 0.01), make(1.0, 0.0, 0.2, 0.1, 0.05), make(0, 0, 0.1, 0.1, 0)};
+    double worst_smith = 0, smith_at = 0, ref_at = 0;
     for (const SlopeGaussian &g : cases) {
         GaussianSlopes d(g);
         for (double theta : {0.2, 0.7, 1.1})
@@ -179,19 +183,13 @@ TEST(GaussianSlopes, ProjectedAreaIdentityHoldsForThePapersLambda) {
                 Vec3 n = d.mesonormal();
                 const double area = dot(n, wo) / n.z;
                 if (!(area > 0.05)) continue;  // wo (nearly) below the mesosurface: not defined
-                const int nt = 800, np = 800;
-                double sum = 0;
-                for (int i = 0; i < nt; ++i) {
-                    const double ct = (i + 0.5) / nt, st = std::sqrt(1 - ct * ct);
-                    for (int j = 0; j < np; ++j) {
-                        const double p = 2 * kPi * (j + 0.5) / np;
-                        Vec3 m(float(st * std::cos(p)), float(st * std::sin(p)), float(ct));
-                        const double c = dot(m, wo);
-                        if (c > 0) sum += d.D(m) * c;
-                    }
-                }
-                sum *= (1.0 / nt) * (2 * kPi / np);
+                const double sum = hemisphere_integral([&](Vec3 m) { return std::max(0.0, double(dot(m, wo))) * d.D(m); }, 800, 800);
                 EXPECT_NEAR(sum, area * (1 + d.lambda(wo)), 3e-3 * sum) << g.mx << " " << theta << " " << phi;
+                const double smith = area * (1 + d.lambda_smith(wo));
+                if (std::abs(smith / sum - 1) > worst_smith) worst_smith = std::abs(smith / sum - 1), smith_at = smith, ref_at = sum;
             }
     }
+    std::printf("projected area: lambda_smith worst case %.4f vs the integral %.4f (relative error %.2f)\n", smith_at, ref_at,
+                worst_smith);
+    EXPECT_GT(worst_smith, 0.1);  // the exact non-centred Smith form really is inconsistent (measured 0.29)
 }
