@@ -66,9 +66,12 @@ ShadingContext SurfaceInteraction::shading_context(bool two_sided) const {
     if (two_sided && dot(wo, g) < 0.f) {
         n = -n;
         g = -g;
+        ctx.side = -1.f;
     }
     ctx.frame = Frame::from_normal_tangent(n, dpdu);
     ctx.ng = g;
+    ctx.dpdu = dpdu;
+    ctx.dpdv = dpdv;
     ctx.dpdx = dpdx;
     ctx.dpdy = dpdy;
     ctx.dudx = dudx;

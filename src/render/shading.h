@@ -12,6 +12,12 @@ struct ShadingContext {
     Vec2 uv;         ///< texture coordinates
     Frame frame;     ///< shading frame (s along dp/du where available)
     Vec3 ng;         ///< geometric normal (world, unit)
+    /// Surface parameterisation derivatives (world; zero when unknown). Materials that read
+    /// texture-space slopes (LEAN, LEADR, ...) map them to the frame with these (paper 000 eq. 12).
+    Vec3 dpdu, dpdv;
+    /// +1 when frame.n is the shape's shading normal, -1 when the two-sided integrator flipped
+    /// the frame towards wo (heights along the shape's normal then point into the surface).
+    float side = 1.f;
     // Ray-differential footprint on the surface (zero when unknown, e.g. in `meso material`).
     Vec3 dpdx, dpdy;
     float dudx = 0, dudy = 0, dvdx = 0, dvdy = 0;

@@ -1,0 +1,112 @@
+#include "texture/slope_source.h"
+#include <cmath>
+#include <fmt/format.h>
+#include "geometry/displacement.h"
+#include "geometry/heightfield.h"
+#include "scene/properties.h"
+
+namespace meso {
+
+SlopeSource::SlopeSource(const SlopeGaussian &constant) : m_const(constant) {}
+
+SlopeSource::SlopeSource(const Heightfield &field, float tiling_u, float tiling_v, Filter filter, float max_anisotropy,
+                         std::string source)
+    : m_mip(std::make_shared<MipMap>(build_slope_moments(field, 1.0 / tiling_u, 1.0 / tiling_v))),
+      m_tu(tiling_u),
+      m_tv(tiling_v),
+      m_filter(filter),
+      m_max_aniso(max_anisotropy),
+      m_source(std::move(source)) {}
+
+bool SlopeSource::present(const Properties &p) {
+    for (const char *k : {"heightmap", "mean_slope", "covariance", "filter", "max_anisotropy"})
+        if (p.has(k)) return true;
+    return false;
+}
+
+SlopeSource SlopeSource::parse(const Properties &p) {
+    if (p.has("heightmap")) {
+        for (const char *k : {"mean_slope", "covariance"})
+            if (p.has(k)) p.fail(k, "give either \"heightmap\" (statistics from a map) or constant statistics, not both");
+        Displacement d = parse_displacement(p.child("heightmap"), 0);
+        Filter filter = Filter::Trilinear;
+        const std::string f = p.get_string("filter", "trilinear");
+        if (f == "trilinear") filter = Filter::Trilinear;
+        else if (f == "ewa") filter = Filter::Ewa;
+        else if (f == "none") filter = Filter::None;
+        else p.fail("filter", fmt::format("expected \"trilinear\", \"ewa\" or \"none\", got \"{}\"", f));
+        const float aniso = p.get_float("max_anisotropy", 8.f);
+        if (!(aniso >= 1.f) || !std::isfinite(aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
+        return SlopeSource(*d.field, d.tiling_u, d.tiling_v, filter, aniso, d.source);
+    }
+    for (const char *k : {"filter", "max_anisotropy"})
+        if (p.has(k)) p.fail(k, "only meaningful with a \"heightmap\"");
+    SlopeGaussian g;
+    if (p.has("mean_slope")) {
+        std::vector<float> m = p.get_floats("mean_slope");
+        if (m.size() != 2 || !std::isfinite(m[0]) || !std::isfinite(m[1]))
+            p.fail("mean_slope", "expected [x, y], finite");
+        g.mx = m[0], g.my = m[1];
+    }
+    if (p.has("covariance")) {
+        std::vector<float> c = p.get_floats("covariance");
+        if (c.size() != 3 || !(c[0] >= 0.f) || !(c[1] >= 0.f) || !std::isfinite(c[0]) || !std::isfinite(c[1]) ||
+            !std::isfinite(c[2]))
+            p.fail("covariance", "expected [sigma_x^2, sigma_y^2, c_xy] with finite, non-negative variances");
+        if (double(c[2]) * c[2] > double(c[0]) * c[1] * (1 + 1e-6))
+            p.fail("covariance", "expected |c_xy| <= sqrt(sigma_x^2 sigma_y^2) (a covariance matrix)");
+        g.sxx = c[0], g.syy = c[1], g.sxy = c[2];
+    }
+    return SlopeSource(g);
+}
+
+void SlopeSource::moments(const ShadingContext &ctx, float out[SlopeMomentCount]) const {
+    if (!m_mip) {
+        out[MomentX] = float(m_const.mx), out[MomentY] = float(m_const.my);
+        out[MomentXX] = float(m_const.sxx + m_const.mx * m_const.mx);
+        out[MomentYY] = float(m_const.syy + m_const.my * m_const.my);
+        out[MomentXY] = float(m_const.sxy + m_const.mx * m_const.my);
+        return;
+    }
+    const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
+    switch (m_filter) {
+        case Filter::None: m_mip->bilinear(0, u, v, out); break;
+        case Filter::Trilinear:
+            m_mip->filtered(u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, out);
+            break;
+        case Filter::Ewa:
+            m_mip->ewa(u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, out, m_max_aniso);
+            break;
+    }
+}
+
+SlopeGaussian SlopeSource::eval(const ShadingContext &ctx) const {
+    if (!m_mip) return m_const;
+    float m[SlopeMomentCount];
+    moments(ctx, m);
+    const double dpdu[3] = {ctx.dpdu.x, ctx.dpdu.y, ctx.dpdu.z}, dpdv[3] = {ctx.dpdv.x, ctx.dpdv.y, ctx.dpdv.z};
+    const double s[3] = {ctx.frame.s.x, ctx.frame.s.y, ctx.frame.s.z}, t[3] = {ctx.frame.t.x, ctx.frame.t.y, ctx.frame.t.z};
+    double dudx, dvdx, dudy, dvdy;
+    if (!uv_per_tangent(dpdu, dpdv, s, t, dudx, dvdx, dudy, dvdy)) return SlopeGaussian{};
+    SlopeGaussian g = slope_gaussian(m, dudx, dvdx, dudy, dvdy);
+    if (ctx.side < 0.f) g.mx = -g.mx, g.my = -g.my;
+    return g;
+}
+
+SlopeGaussian SlopeSource::mean_over_map() const {
+    if (!m_mip) return m_const;
+    float m[SlopeMomentCount];
+    m_mip->level_mean(0, m);
+    return slope_gaussian(m, 1, 0, 0, 1);
+}
+
+std::string SlopeSource::to_string() const {
+    if (!m_mip)
+        return fmt::format("mean slope ({:.4g}, {:.4g}), covariance ({:.4g}, {:.4g}, {:.4g})", m_const.mx, m_const.my,
+                           m_const.sxx, m_const.syy, m_const.sxy);
+    static const char *filters[] = {"trilinear", "ewa", "none"};
+    return fmt::format("slope moments of {} ({}x{}, tiling {}x{}, {} filter, {:.2f} MB)", m_source, m_mip->width(),
+                       m_mip->height(), m_tu, m_tv, filters[int(m_filter)], m_mip->memory_bytes() / 1048576.0);
+}
+
+}  // namespace meso
