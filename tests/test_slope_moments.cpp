@@ -157,3 +157,94 @@ TEST(SlopeMoments, DistortionFromTheParameterisation) {
     EXPECT_FALSE(uv_per_tangent(zero, dpdv, t, b, ux, vx, uy, vy));
     EXPECT_EQ(ux, 0.0);
 }
+
+// ---- SlopeSource: the moments read at a shading point ------------------------------------
+
+#include <nlohmann/json.hpp>
+#include "geometry/heightmap_gen.h"
+#include "scene/properties.h"
+#include "texture/slope_source.h"
+
+namespace {
+
+ShadingContext plane_context(Vec3 dpdu, Vec3 dpdv, Vec2 uv, float footprint_uv) {
+    ShadingContext ctx;
+    ctx.uv = uv;
+    ctx.dpdu = dpdu, ctx.dpdv = dpdv;
+    ctx.frame = Frame(Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1));
+    ctx.dudx = footprint_uv, ctx.dvdy = footprint_uv;
+    return ctx;
+}
+
+SlopeSource parse_source(const std::string &json) {
+    return SlopeSource::parse(Properties(nlohmann::json::parse(json), "material", std::make_shared<LoadContext>()));
+}
+
+}  // namespace
+
+TEST(SlopeSource, WholeMapFootprintGivesTheMapsWorldSlopeStatistics) {
+    // A Gaussian surface with a known cell-slope covariance (tile units), tiled 4 x 2 over a
+    // plane whose uv square is 3 x 5 world units: world slopes = tile slopes * scale * tiling / length.
+    std::map<std::string, std::string> params{{"size", "128"}, {"sxx", "0.1"}, {"syy", "0.05"}, {"sxy", "0.02"},
+                                              {"correlation", "0.1"}};
+    GeneratedMap g = generate_height_map("gaussian", params);
+    HeightMapStats st = height_map_stats(g.height);
+    const float scale = 0.7f;
+    Heightfield hf(g.height, scale, 0.f);
+    SlopeSource src(hf, 4.f, 2.f);
+    ShadingContext ctx = plane_context(Vec3(3, 0, 0), Vec3(0, 5, 0), Vec2(0.3f, 0.6f), 10.f);  // coarsest level
+    SlopeGaussian s = src.eval(ctx);
+    const double kx = scale * 4.0 / 3.0, ky = scale * 2.0 / 5.0;
+    // The moment MIP also holds the variance inside each bilinear cell, which the cell-average
+    // statistics leave out: a few per cent for a correlation length of ~13 cells.
+    EXPECT_NEAR(s.mx, st.mean_su * kx, 1e-4);
+    EXPECT_NEAR(s.my, st.mean_sv * ky, 1e-4);
+    EXPECT_NEAR(s.sxx, st.sxx * kx * kx, 0.04 * st.sxx * kx * kx);
+    EXPECT_NEAR(s.syy, st.syy * ky * ky, 0.04 * st.syy * ky * ky);
+    EXPECT_NEAR(s.sxy, st.sxy * kx * ky, 0.04 * std::sqrt(st.sxx * st.syy) * kx * ky);
+    // A point footprint reads one cell: no more than the cell's own variance, less than the map's.
+    SlopeGaussian c = src.eval(plane_context(Vec3(3, 0, 0), Vec3(0, 5, 0), Vec2(0.3f, 0.6f), 0.f));
+    EXPECT_LT(c.sxx, 0.2 * s.sxx);
+}
+
+TEST(SlopeSource, FlippedFrameSeesTheNegatedHeights) {
+    HeightMap ramp(16, 16);
+    for (int j = 0; j < 16; ++j)
+        for (int i = 0; i < 16; ++i) ramp.at(i, j) = 0.5f * i - 0.25f * j;
+    Heightfield hf(ramp, 1.f, 0.f);
+    SlopeSource src(hf, 1.f, 1.f, SlopeSource::Filter::None);
+    ShadingContext ctx = plane_context(Vec3(2, 0, 0), Vec3(0, 2, 0), Vec2(0.5f, 0.5f), 0.f);
+    SlopeGaussian front = src.eval(ctx);
+    EXPECT_NEAR(front.mx, 4.0, 1e-4);   // 8 per unit u over 2 world units
+    EXPECT_NEAR(front.my, -2.0, 1e-4);
+    // The two-sided integrator flips n (and t = n x s) towards a viewer below the surface:
+    // the heights then point away from it, h' = -h, with y' = -y.
+    ctx.frame = Frame(Vec3(1, 0, 0), Vec3(0, -1, 0), Vec3(0, 0, -1));
+    ctx.side = -1.f;
+    SlopeGaussian back = src.eval(ctx);
+    EXPECT_NEAR(back.mx, -4.0, 1e-4);
+    EXPECT_NEAR(back.my, -2.0, 1e-4);
+    EXPECT_NEAR(back.sxx, front.sxx, 1e-6);
+    // Degenerate parameterisation: flat, finite.
+    ctx.dpdv = Vec3(0, 0, 0);
+    SlopeGaussian flat = src.eval(ctx);
+    EXPECT_EQ(flat.mx, 0.0);
+    EXPECT_EQ(flat.sxx, 0.0);
+}
+
+TEST(SlopeSource, ParsesConstantsAndRejectsMixedOrBadKeys) {
+    SlopeSource c = parse_source(R"({"mean_slope":[0.1,-0.2],"covariance":[0.04,0.09,0.01]})");
+    EXPECT_TRUE(c.is_constant());
+    SlopeGaussian g = c.eval(ShadingContext{});
+    EXPECT_DOUBLE_EQ(g.mx, 0.1f);
+    EXPECT_DOUBLE_EQ(g.syy, 0.09f);
+    SlopeSource m = parse_source(R"({"heightmap":{"map":{"generator":"gaussian","size":32}},"filter":"ewa"})");
+    EXPECT_FALSE(m.is_constant());
+    EXPECT_NE(m.to_string().find("ewa"), std::string::npos);
+    EXPECT_THROW(parse_source(R"({"heightmap":{"map":{"generator":"gaussian","size":32}},"covariance":[1,1,0]})"),
+                 MesoError);
+    EXPECT_THROW(parse_source(R"({"heightmap":{"map":{"generator":"gaussian","size":32}},"filter":"box"})"), MesoError);
+    EXPECT_THROW(parse_source(R"({"filter":"ewa"})"), MesoError);
+    EXPECT_THROW(parse_source(R"({"covariance":[0.1,0.1,0.5]})"), MesoError);
+    EXPECT_THROW(parse_source(R"({"heightmap":{"scale":1}})"), MesoError);
+}
