@@ -140,6 +140,30 @@ std::vector<Case> battery_cases() {
     add("blinnphong_200_fresnel", R"({"type":"blinnphong","exponent":200,"eta":1.5})").jacobian = true;
     add("blinnphong_2000", R"({"type":"blinnphong","exponent":2000})").jacobian = true;
     add("blinnphong_0", R"({"type":"blinnphong","exponent":0})").jacobian = true;
+    // lean / clean (paper 003): separable Smith on Gaussian slopes; iso, aniso-correlated, tilted, 80-degree tilt
+    add("lean_iso", R"({"type":"lean","covariance":[0.045,0.045,0]})").jacobian = true;
+    add("lean_aniso_corr_Cu", R"({"type":"lean","material":"Cu","covariance":[0.09,0.02,0.03]})").jacobian = true;
+    add("lean_mean", R"({"type":"lean","mean_slope":[0.3,-0.2],"covariance":[0.04,0.05,-0.01]})").jacobian = true;
+    add("lean_exponent_50", R"({"type":"lean","exponent":50})").jacobian = true;
+    add("lean_tilt80", R"({"type":"lean","mean_slope":[5.67,0],"covariance":[0.1,0.1,0.05]})");
+    add("lean_tilt80_exponent", R"({"type":"lean","mean_slope":[5.67,0],"exponent":5})");
+    add("lean_rational", R"({"type":"lean","alpha":0.5,"rational_lambda":true})").jacobian = true;
+    add("clean_aniso", R"({"type":"clean","covariance":[0.09,0.01,0.02],"exponent":200})").jacobian = true;
+    add("clean_mean_Au", R"({"type":"clean","material":"Au","mean_slope":[-0.4,0.1],"covariance":[0.02,0.06,0]})").jacobian = true;
+    // toksvig (paper 003): |N_a| = 1, 0.9, 0.5, tilted average normal
+    add("toksvig_1", R"({"type":"toksvig","exponent":100})").jacobian = true;
+    add("toksvig_09", R"({"type":"toksvig","exponent":300,"average_normal":[0,0,0.9]})").jacobian = true;
+    add("toksvig_05_fresnel", R"({"type":"toksvig","exponent":1000,"average_normal":[0,0,0.5],"eta":1.5})").jacobian = true;
+    add("toksvig_tilted", R"({"type":"toksvig","exponent":50,"average_normal":[0.3,-0.2,0.8]})").jacobian = true;
+    // normalmap around conductors and diffuse, constant normal or mean slope
+    add("normalmap_conductor_Au", R"({"type":"normalmap","normal":[0.3,0.1,0.9],"bsdf":{"type":"conductor","material":"Au","alpha":0.2}})").jacobian = true;
+    add("normalmap_diffuse_slope", R"({"type":"normalmap","mean_slope":[0.4,-0.3],"bsdf":{"type":"diffuse","reflectance":0.8}})").jacobian = true;
+    add("normalmap_smooth_conductor", R"({"type":"normalmap","mean_slope":[0.2,0],"bsdf":{"type":"conductor"}})");
+    add("normalmap_lean", R"({"type":"normalmap","normal":[-0.2,0.2,1],"bsdf":{"type":"lean","covariance":[0.05,0.02,0.01]}})").jacobian = true;
+    {
+        Case &d = add("normalmap_flat_diffuse", R"({"type":"normalmap","normal":[0,0,1],"bsdf":{"type":"diffuse","reflectance":1}})");
+        d.lossless = d.jacobian = d.pdf_complete = true;
+    }
     return c;
 }
 
