@@ -108,6 +108,14 @@ std::vector<Case> battery_cases() {
     // (no Jacobian check: from most wo the 80-degree mesosurface is back-facing and sample() fails)
     add("leadr_tilt80", R"({"type":"leadr","mean_slope":[5.67,0],"covariance":[0.1,0.1,0.05]})");
     add("leadr_rational", R"({"type":"leadr","alpha":0.5,"rational_lambda":true})").jacobian = true;
+    add("leadr_masking", R"({"type":"leadr","alpha":0.3,"shadowing":"masking"})").jacobian = true;
+    // diffuse microfacets (eq. 21) and specular + diffuse mixtures (lobe mixture: no Jacobian check)
+    add("leadr_diffuse_iso", R"({"type":"leadr","specular_reflectance":0,"diffuse_reflectance":1,"alpha":0.5})");
+    add("leadr_diffuse_mean", R"({"type":"leadr","specular_reflectance":0,"diffuse_reflectance":0.8,"mean_slope":[0.3,-0.2],"covariance":[0.04,0.05,-0.01]})");
+    add("leadr_diffuse_tilt80", R"({"type":"leadr","specular_reflectance":0,"diffuse_reflectance":1,"mean_slope":[5.67,0],"covariance":[0.1,0.1,0.05]})");
+    add("leadr_diffuse_rough_masking", R"({"type":"leadr","specular_reflectance":0,"diffuse_reflectance":1,"covariance":[2,2,0],"shadowing":"masking"})");
+    add("leadr_mix_Cu", R"({"type":"leadr","material":"Cu","specular_reflectance":0.6,"diffuse_reflectance":[0.4,0.3,0.2],"covariance":[0.09,0.02,0.03]})");
+    add("leadr_mix_mean_masking", R"({"type":"leadr","specular_reflectance":0.5,"diffuse_reflectance":0.5,"mean_slope":[0.5,0.2],"alpha":0.3,"shadowing":"masking"})");
     add("conductor_smooth_eta_k", R"({"type":"conductor","eta":[0.2,0.9,1.1],"k":[3.9,2.4,2.1]})");
     // dielectric
     {
@@ -411,6 +419,9 @@ TEST(MaterialExtremes, FiniteAndNonNegative) {
     const char *cfgs[] = {
         R"({"type":"diffuse","reflectance":0})",
         R"({"type":"diffuse","reflectance":1})",
+        R"({"type":"leadr","covariance":[1e-12,1e-12,0],"diffuse_reflectance":0.5})",
+        R"({"type":"leadr","covariance":[100,100,0],"specular_reflectance":0,"diffuse_reflectance":1})",
+        R"({"type":"leadr","mean_slope":[1000,0],"covariance":[0.1,0.1,0.1],"diffuse_reflectance":0.5,"shadowing":"masking"})",
         R"({"type":"conductor","alpha":1e-6})",
         R"({"type":"conductor","alpha":1e-4,"material":"Au"})",
         R"({"type":"conductor","alpha":10})",

@@ -34,6 +34,10 @@ public:
     size_t memory_bytes() const;
     int width() const { return m_w; }
     int height() const { return m_h; }
+    /// The texels (linear radiance × scale, row-major, top row first) and the rotation, for
+    /// consumers that filter the map themselves (render/leadr_quadrature.h).
+    const std::vector<Spectrum> &texels() const { return m_texels; }
+    const Transform &to_world() const { return m_to_world; }
 
     void preprocess(Vec3 scene_center, float scene_radius) override { m_radius = scene_radius; }
     bool sample(const LightSampleContext &ctx, Vec2 u, LightSample &out) const override;

@@ -2,6 +2,7 @@
 #include <fmt/format.h>
 #include "geometry/shape.h"
 #include "render/differentials.h"
+#include "render/leadr_quadrature.h"
 #include "render/lod.h"
 #include "render/material.h"
 #include "sampling/sampler.h"
@@ -9,6 +10,12 @@
 #include "scene/scene.h"
 
 namespace meso {
+
+void PathTracer::preprocess(const Scene &scene) {
+    m_envs.clear();
+    if (m_leadr_env_quadrature)
+        for (const Light *env : scene.infinite_lights) m_envs.push_back(PrefilteredEnvironment::from_light(*env));
+}
 
 Spectrum PathTracer::li(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats) const {
     return trace(scene, ray, sampler, stats, -1);
@@ -22,6 +29,7 @@ Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sam
     float prev_pdf = 0.f;
     LightSampleContext prev_ctx;
     float eta_scale = 1.f;
+    bool env_by_quadrature = false;  // the previous vertex took the environment from its quadrature
 
     for (int depth = 0;; ++depth) {
         SurfaceInteraction si;
@@ -49,7 +57,7 @@ Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sam
         const bool count_emission = !(depth == 0 && m_hide_emitters);
 
         if (!hit) {
-            if (count_emission)
+            if (count_emission && !env_by_quadrature)
                 for (const Light *env : scene.infinite_lights) {
                     Spectrum Le = env->eval(LightHit{}, -ray.d);
                     if (Le.is_black()) continue;
@@ -87,6 +95,13 @@ Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sam
         const Vec3 wo = ctx.frame.to_local(si.wo);
         if (wo.z == 0.f && two_sided) break;
 
+        // The whole unoccluded environment by the material's quadrature (leadr_env_quadrature).
+        const EnvQuadratureShading *quad =
+            m_envs.empty() ? nullptr : dynamic_cast<const EnvQuadratureShading *>(mat);
+        if (quad)
+            for (const auto &env : m_envs) L += beta * quad->env_radiance(ctx, wo, *env);
+        env_by_quadrature = quad != nullptr;
+
         // Next-event estimation: one light sample, MIS-weighted against BSDF sampling.
         if (mat->flags() & BSDF_Smooth) {
             float pmf;
@@ -94,8 +109,9 @@ Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sam
             Vec2 u2 = sampler.get_2d();
             const Light *light = scene.sample_light(ul, pmf);
             LightSample ls;
-            if (light && pmf > 0.f && light->sample(LightSampleContext{si.p, ctx.ng}, u2, ls) && ls.pdf > 0.f &&
-                !ls.L.is_black()) {
+            const bool by_quadrature = quad && light && light->is_infinite();  // already counted above
+            if (light && pmf > 0.f && !by_quadrature && light->sample(LightSampleContext{si.p, ctx.ng}, u2, ls) &&
+                ls.pdf > 0.f && !ls.L.is_black()) {
                 Vec3 wi = ctx.frame.to_local(ls.wi);
                 // Reflection-only surfaces cannot be lit from behind their geometric side.
                 bool ok = two_sided ? dot(ls.wi, ctx.ng) > 0.f : true;
@@ -150,8 +166,9 @@ Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sam
 }
 
 std::string PathTracer::to_string() const {
-    return fmt::format("{} (max_depth {}, rr_depth {}{})", m_name, m_max_depth, m_rr_depth,
-                       m_hide_emitters ? ", hide_emitters" : "");
+    return fmt::format("{} (max_depth {}, rr_depth {}{}{})", m_name, m_max_depth, m_rr_depth,
+                       m_hide_emitters ? ", hide_emitters" : "",
+                       m_leadr_env_quadrature ? ", environment by LEADR quadrature" : "");
 }
 
 }  // namespace meso

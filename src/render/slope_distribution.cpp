@@ -68,7 +68,16 @@ double GaussianSlopes::lambda(Vec3 w, bool rational) const {
         if (nu >= 1.6) return 0.0;
         return (1.0 - 1.259 * nu + 0.396 * nu * nu) / (3.535 * nu + 2.181 * nu * nu);
     }
-    return std::exp(-nu * nu) / (2 * nu * std::sqrt(kPi)) - 0.5 * std::erfc(nu);
+    if (nu > 6.0) {
+        // The two terms agree to ~1/(2 nu^2) relative: use the asymptotic series of erfc,
+        // Lambda = exp(-nu^2) / (2 nu sqrt(pi)) (1/(2 nu^2) - 3/(4 nu^4) + 15/(8 nu^6) - 105/(16 nu^8) + 945/(32 nu^10)),
+        // truncation below 6e-6 relative for nu > 6 (where Lambda < 2e-19 anyway).
+        const double r = 1.0 / (nu * nu);
+        const double series = r * (0.5 + r * (-0.75 + r * (1.875 + r * (-6.5625 + r * 29.53125))));
+        return std::exp(-nu * nu) / (2 * nu * std::sqrt(kPi)) * series;
+    }
+    // Rounding can leave a tiny negative difference: Lambda >= 0.
+    return std::max(0.0, std::exp(-nu * nu) / (2 * nu * std::sqrt(kPi)) - 0.5 * std::erfc(nu));
 }
 
 double GaussianSlopes::lambda_smith(Vec3 w) const {
