@@ -119,8 +119,7 @@ std::shared_ptr<Material> make_conductor(const Properties &p) {
         if (p.has("k")) p.fail("k", "give either \"material\" or \"eta\"/\"k\", not both");
         desc = p.get_string("material");
         if (desc != "none" && !conductor_preset(desc, eta, k)) {
-            std::string known;
-            for (auto &n : conductor_preset_names()) known += (known.empty() ? "" : ", ") + n;
+            const std::string known = conductor_preset_list();
             p.fail("material", fmt::format("unknown conductor '{}' (known: {})", desc, known));
         }
     } else if (p.has("eta") || p.has("k")) {

@@ -265,8 +265,7 @@ std::shared_ptr<Material> make_leadr(const Properties &p) {
     lp.base_variance = 0.5 * lp.alpha * lp.alpha;
     lp.conductor = p.get_string("material", "none");
     if (lp.conductor != "none" && !conductor_preset(lp.conductor, lp.eta, lp.k)) {
-        std::string known;
-        for (auto &n : conductor_preset_names()) known += (known.empty() ? "" : ", ") + n;
+        const std::string known = conductor_preset_list();
         p.fail("material", fmt::format("unknown conductor '{}' (known: {})", lp.conductor, known));
     }
     lp.ks = p.get_texture("specular_reflectance", Spectrum(1.f));

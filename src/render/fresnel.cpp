@@ -123,6 +123,12 @@ bool conductor_preset(const std::string &name, Spectrum &eta, Spectrum &k) {
         }
     return false;
 }
+std::string conductor_preset_list() {
+    std::string known;
+    for (auto &n : conductor_preset_names()) known += (known.empty() ? "" : ", ") + n;
+    return known;
+}
+
 std::vector<std::string> conductor_preset_names() {
     std::vector<std::string> v;
     for (const auto &p : kConductors) v.push_back(p.name);

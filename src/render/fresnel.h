@@ -59,6 +59,8 @@ double fresnel_diffuse_reflectance(double eta);
 bool conductor_preset(const std::string &name, Spectrum &eta, Spectrum &k);
 /// Names accepted by conductor_preset (for error messages).
 std::vector<std::string> conductor_preset_names();
+/// The names above joined by ", " (for error messages).
+std::string conductor_preset_list();
 
 /// Named indices of refraction of dielectrics (Mitsuba 3's table: "vacuum", "air",
 /// "water", "bk7", "acrylic glass", "diamond", ...). Returns false if unknown.

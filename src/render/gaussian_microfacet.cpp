@@ -87,8 +87,7 @@ GaussianMicrofacetParams parse_gaussian_microfacet(const Properties &p) {
     }
     r.conductor = p.get_string("material", "none");
     if (r.conductor != "none" && !conductor_preset(r.conductor, r.eta, r.k)) {
-        std::string known;
-        for (auto &n : conductor_preset_names()) known += (known.empty() ? "" : ", ") + n;
+        const std::string known = conductor_preset_list();
         p.fail("material", fmt::format("unknown conductor '{}' (known: {})", r.conductor, known));
     }
     r.specular = p.get_texture("specular_reflectance", Spectrum(1.f));

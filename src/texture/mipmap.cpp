@@ -188,6 +188,15 @@ void MipMap::trilinear(float level, float u, float v, float *out) const {
     for (int k = 0; k < m_channels; ++k) out[k] = (1.f - t) * out[k] + t * b[k];
 }
 
+void MipMap::lookup(FootprintFilter filter, float u, float v, float dudx, float dudy, float dvdx, float dvdy,
+                    float *out, float max_anisotropy) const {
+    switch (filter) {
+        case FootprintFilter::None: bilinear(0, u, v, out); break;
+        case FootprintFilter::Trilinear: filtered(u, v, dudx, dudy, dvdx, dvdy, out); break;
+        case FootprintFilter::Ewa: ewa(u, v, dudx, dudy, dvdx, dvdy, out, max_anisotropy); break;
+    }
+}
+
 void MipMap::filtered(float u, float v, float dudx, float dudy, float dvdx, float dvdy, float *out) const {
     trilinear(level_for_footprint(dudx, dudy, dvdx, dvdy), u, v, out);
 }

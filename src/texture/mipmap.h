@@ -31,6 +31,10 @@ namespace meso {
 
 enum class WrapMode { Repeat, Clamp, Mirror };
 
+/// How a lookup uses the ray-differential footprint: trilinear (level from its width), EWA,
+/// or none (level-0 bilinear: the finest data under the point).
+enum class FootprintFilter { Trilinear, Ewa, None };
+
 /// Parses "repeat" | "clamp" | "mirror"; returns false for anything else.
 bool parse_wrap_mode(const std::string &s, WrapMode &out);
 
@@ -73,6 +77,9 @@ public:
     void ewa(float u, float v, float dudx, float dudy, float dvdx, float dvdy, float *out,
              float max_anisotropy = 8.f) const;
     static constexpr float kEwaMaxAnisotropy = 64.f;
+    /// filtered(), ewa() or bilinear(0, ...) as `filter` says.
+    void lookup(FootprintFilter filter, float u, float v, float dudx, float dudy, float dvdx, float dvdy, float *out,
+                float max_anisotropy = 8.f) const;
 
     size_t memory_bytes() const;
 

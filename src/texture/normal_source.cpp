@@ -159,15 +159,7 @@ Vec3 NormalSource::eval(const ShadingContext &ctx) const {
     if (!m_mip) return m_const;
     float n[3];
     const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
-    switch (m_filter) {
-        case Filter::None: m_mip->bilinear(0, u, v, n); break;
-        case Filter::Trilinear:
-            m_mip->filtered(u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, n);
-            break;
-        case Filter::Ewa:
-            m_mip->ewa(u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, n, m_max_aniso);
-            break;
-    }
+    m_mip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, n, m_max_aniso);
     // Frame conventions: see the header.
     const float sx = ctx.side < 0.f ? -1.f : 1.f;
     float sy = 1.f;

@@ -47,7 +47,7 @@ struct Image;
 
 class NormalSource {
 public:
-    enum class Filter { Trilinear, Ewa, None };
+    using Filter = FootprintFilter;
     enum class Space { Shading, UV };  ///< image normals (s, t, n) or baked (u, v, n)
 
     /// A constant average normal (shading frame).

@@ -69,15 +69,7 @@ void SlopeSource::moments(const ShadingContext &ctx, float out[SlopeMomentCount]
         return;
     }
     const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
-    switch (m_filter) {
-        case Filter::None: m_mip->bilinear(0, u, v, out); break;
-        case Filter::Trilinear:
-            m_mip->filtered(u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, out);
-            break;
-        case Filter::Ewa:
-            m_mip->ewa(u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, out, m_max_aniso);
-            break;
-    }
+    m_mip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, out, m_max_aniso);
 }
 
 SlopeGaussian SlopeSource::eval(const ShadingContext &ctx) const {

@@ -33,7 +33,7 @@ class Heightfield;
 
 class SlopeSource {
 public:
-    enum class Filter { Trilinear, Ewa, None };
+    using Filter = FootprintFilter;
 
     /// Constant statistics (tangent frame).
     explicit SlopeSource(const SlopeGaussian &constant = {});
