@@ -158,8 +158,16 @@ NormalSource NormalSource::parse(const Properties &p, const std::string &constan
 Vec3 NormalSource::eval(const ShadingContext &ctx) const {
     if (!m_mip) return m_const;
     float n[3];
+    lookup_same_grid(*m_mip, ctx, n);
+    return to_local(ctx, Vec3(n[0], n[1], n[2]));
+}
+
+void NormalSource::lookup_same_grid(const MipMap &mip, const ShadingContext &ctx, float *out) const {
     const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
-    m_mip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, n, m_max_aniso);
+    mip.lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, out, m_max_aniso);
+}
+
+Vec3 NormalSource::to_local(const ShadingContext &ctx, Vec3 n) const {
     // Frame conventions: see the header.
     const float sx = ctx.side < 0.f ? -1.f : 1.f;
     float sy = 1.f;
@@ -168,7 +176,7 @@ Vec3 NormalSource::eval(const ShadingContext &ctx) const {
         const float tv = dot(ctx.frame.t, ctx.dpdv) * sx;
         sy = tv < 0.f ? -1.f : 1.f;
     }
-    return Vec3(sx * n[0], sy * n[1], n[2]);
+    return Vec3(sx * n.x, sy * n.y, n.z);
 }
 
 Vec3 NormalSource::mean_over_map() const {

@@ -76,6 +76,19 @@ public:
     /// otherwise.
     Vec3 mean_over_map() const;
     const MipMap *mip() const { return m_mip.get(); }
+    Space space() const { return m_space; }
+    float tiling_u() const { return m_tu; }
+    float tiling_v() const { return m_tv; }
+    Filter filter() const { return m_filter; }
+    float max_anisotropy() const { return m_max_aniso; }
+    /// Looks up another MIP defined on the same texel grid as this source's map (same
+    /// tiling, footprint filter and anisotropy limit), e.g. per-texel data derived from the
+    /// normals. `out` receives mip.channels() floats.
+    void lookup_same_grid(const MipMap &mip, const ShadingContext &ctx, float *out) const;
+    /// A vector stored in the map's frame ((s, t, n) or (u, v, n)) in ctx's local frame:
+    /// the sign conventions of eval() (x flips with ctx.side, y with the orientation of
+    /// dp/dv in the UV space).
+    Vec3 to_local(const ShadingContext &ctx, Vec3 map_vector) const;
 
     std::string to_string() const;
 
