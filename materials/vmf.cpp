@@ -149,15 +149,23 @@ public:
             out.flags = BSDF_DiffuseReflection;
         }
         if (!(wi.z > 0.f)) return false;
-        const float p = pdf_of(s, wo, wi);
-        if (!(p > 0.f)) return false;
-        Spectrum v = s.kd * (wi.z * InvPi);
+        // The weight in double precision: at κ ~ 1e9 the density of a float direction can be
+        // denormal in float, and a float ratio of denormals is not eval / pdf.
         const Vec3 h = half(wo, wi);
         const float d = dot(wo, h);
-        if (d > 0.f) v += fresnel(s, d) * float(spec_density(s, h, wo, wi, true) / (4.0 * d));
+        double dens = 0.0, dens_g = 0.0;
+        if (d > 0.f) {
+            dens = spec_density(s, h, wo, wi, false);
+            dens_g = m.smith ? spec_density(s, h, wo, wi, true) : dens;
+        }
+        const double pd = pdf_from(s, wi.z, d, dens);
+        if (!(pd > 1e-30) || !std::isfinite(pd)) return false;
+        const float p = float(pd);
+        Spectrum v = s.kd * float(wi.z * InvPi / pd);
+        if (d > 0.f) v += fresnel(s, d) * float(dens_g / (4.0 * d) / pd);
         out.wi = wi;
         out.pdf = p;
-        out.weight = v / p;
+        out.weight = v;
         out.eta = 1.f;
         return true;
     }
@@ -240,12 +248,18 @@ private:
     }
 
     float pdf_of(const State &s, const Vec3 &wo, const Vec3 &wi) const {
-        double p = (1.0 - s.p_spec) * wi.z * InvPi;
         const Vec3 h = half(wo, wi);
         const float d = dot(wo, h);
-        if (d > 0.f && s.p_spec > 0.f && s.wsum > 0.0)
-            p += s.p_spec * spec_density(s, h, wo, wi, false) / s.wsum / (4.0 * d);
-        return float(p);
+        const double dens = d > 0.f && s.p_spec > 0.f && s.wsum > 0.0 ? spec_density(s, h, wo, wi, false) : 0.0;
+        const double p = pdf_from(s, wi.z, d, dens);
+        return p > 1e-30 ? float(p) : 0.f;
+    }
+
+    /// The mixture pdf from the specular sampling density Σ w_j γ_j(h) (no G).
+    static double pdf_from(const State &s, float cos_i, float d, double dens) {
+        double p = (1.0 - s.p_spec) * cos_i * InvPi;
+        if (d > 0.f && s.p_spec > 0.f && s.wsum > 0.0) p += s.p_spec * dens / s.wsum / (4.0 * d);
+        return p;
     }
 
     Config m;

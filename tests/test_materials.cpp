@@ -72,6 +72,7 @@ struct Case {
     bool jacobian = false;      ///< single continuous sampling map (no lobe mixture)
     bool pdf_complete = false;  ///< sample() never fails: ∫pdf = 1 − P(delta)
     bool inside = false;        ///< also test wo below the surface (transmissive)
+    int chi2_sub = 16;          ///< Simpson intervals per χ² cell and axis (narrow lobes need more)
 };
 
 std::vector<Case> battery_cases() {
@@ -163,6 +164,23 @@ std::vector<Case> battery_cases() {
     add("toksvig_09", R"({"type":"toksvig","exponent":300,"average_normal":[0,0,0.9]})").jacobian = true;
     add("toksvig_05_fresnel", R"({"type":"toksvig","exponent":1000,"average_normal":[0,0,0.5],"eta":1.5})").jacobian = true;
     add("toksvig_tilted", R"({"type":"toksvig","exponent":50,"average_normal":[0.3,-0.2,0.8]})").jacobian = true;
+    // vmf (paper 002): one lobe at kappa = 1, 128, 1e4 (the issue's chi2 settings), uniform, the
+    // two-lobe Tablecloth BRDF, Blinn-Phong + diffuse + Schlick, Smith shadowing, LEAN mode, a map
+    // (κ = 1 and 0: no Jacobian check, most samples fail by construction — half vectors facing
+    // away from wo or reflecting below the surface are absorbed)
+    add("vmf_k1", R"({"type":"vmf","lobes":[{"direction":[0.3,0.1,0.9],"kappa":1}]})");
+    add("vmf_k128", R"({"type":"vmf","lobes":[{"direction":[0.3,0.1,0.9],"kappa":128}]})").jacobian = true;
+    {
+        Case &d = add("vmf_k1e4", R"({"type":"vmf","lobes":[{"direction":[-0.2,0.1,0.9],"kappa":1e4}]})");
+        d.jacobian = true;
+        d.chi2_sub = 128;  // lobe width 0.01 rad: Simpson steps of ~1e-3 rad
+    }
+    add("vmf_uniform", R"({"type":"vmf","lobes":[{"direction":[0,0,1],"kappa":0}]})");
+    add("vmf_tablecloth", R"({"type":"vmf","lobes":[{"direction":[0.70710678,0,0.70710678],"kappa":128},{"direction":[-0.70710678,0,0.70710678],"kappa":128}]})");
+    add("vmf_phong_diffuse_schlick", R"({"type":"vmf","exponent":50,"diffuse":[0.3,0.2,0.1],"specular":0.04,"fresnel":"schlick"})");
+    add("vmf_smith_Au", R"({"type":"vmf","lobes":[{"direction":[0.4,0,0.9],"kappa":30},{"direction":[0,-0.3,1],"kappa":300,"weight":2}],"shadowing":"smith","fresnel":"Au"})");
+    add("vmf_lean_mode", R"({"type":"vmf","mode":"lean","lobes":[{"direction":[0.70710678,0,0.70710678],"kappa":128},{"direction":[-0.70710678,0,0.70710678],"kappa":128}],"shadowing":"smith"})").jacobian = true;
+    add("vmf_map_adaptive", R"({"type":"vmf","heightmap":{"map":{"generator":"gaussian","size":32,"correlation":0.1,"sxx":0.1,"syy":0.1}},"ndf_kappa":300,"lobes":[{"direction":[0.70710678,0,0.70710678],"kappa":128},{"direction":[-0.70710678,0,0.70710678],"kappa":128}],"diffuse":0.2})");
     // normalmap around conductors and diffuse, constant normal or mean slope
     add("normalmap_conductor_Au", R"({"type":"normalmap","normal":[0.3,0.1,0.9],"bsdf":{"type":"conductor","material":"Au","alpha":0.2}})").jacobian = true;
     add("normalmap_diffuse_slope", R"({"type":"normalmap","mean_slope":[0.4,-0.3],"bsdf":{"type":"diffuse","reflectance":0.8}})").jacobian = true;
@@ -212,6 +230,7 @@ TEST_P(MaterialChi2, SamplingMatchesPdf) {
     Chi2Options opt;
     opt.samples = 200000;
     opt.res = 16;
+    opt.sub = p.c.chi2_sub;
     opt.seed = std::hash<std::string>()(p.c.name) + uint64_t(p.theta);
     opt.test_count = int(chi2_params().size());
     opt.name = p.c.name + "_theta" + std::to_string(int(p.theta));
@@ -419,6 +438,9 @@ TEST(MaterialExtremes, FiniteAndNonNegative) {
     const char *cfgs[] = {
         R"({"type":"diffuse","reflectance":0})",
         R"({"type":"diffuse","reflectance":1})",
+        R"({"type":"vmf","lobes":[{"direction":[0,0,1],"kappa":1e6}],"diffuse":0.5})",
+        R"({"type":"vmf","lobes":[{"direction":[1,0,0],"kappa":0}],"shadowing":"smith"})",
+        R"({"type":"vmf","mode":"lean","exponent":1e7,"shadowing":"smith"})",
         R"({"type":"leadr","covariance":[1e-12,1e-12,0],"diffuse_reflectance":0.5})",
         R"({"type":"leadr","covariance":[100,100,0],"specular_reflectance":0,"diffuse_reflectance":1})",
         R"({"type":"leadr","mean_slope":[1000,0],"covariance":[0.1,0.1,0.1],"diffuse_reflectance":0.5,"shadowing":"masking"})",

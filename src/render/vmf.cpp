@@ -30,6 +30,13 @@ double pdf_cos(double kappa, double c) {
     return kappa_over_one_minus_exp(kappa) / (2.0 * kPi) * std::exp(kappa * (c - 1.0));
 }
 
+double pdf(Vec3 mu, double kappa, Vec3 w) {
+    const double mx = mu.x, my = mu.y, mz = mu.z, wx = w.x, wy = w.y, wz = w.z;
+    const double l2 = (mx * mx + my * my + mz * mz) * (wx * wx + wy * wy + wz * wz);
+    if (!(l2 > 0.0)) return pdf_cos(kappa, 0.0);
+    return pdf_cos(kappa, (mx * wx + my * wy + mz * wz) / std::sqrt(l2));
+}
+
 double pdf_cos_large_kappa(double kappa, double c) { return kappa / (2.0 * kPi) * std::exp(kappa * (c - 1.0)); }
 
 double sample_cos(double kappa, double u, double *one_minus_w) {
@@ -83,6 +90,22 @@ double r_from_kappa_closed_form(double kappa) {
 double r_from_kappa(double kappa) {
     if (!(kappa > 0.0)) return 0.0;
     if (!std::isfinite(kappa)) return 1.0;
+    if (kappa < 1.0) {
+        // Small κ: ‖r‖ ≈ κ/3 is small, so solve for it directly (1 − e would lose its
+        // relative precision): Newton on f(r) = r³ − κr² − 3r + κ, bracketed in [0, 1).
+        double lo = 0.0, hi = 1.0, r = std::clamp(r_from_kappa_closed_form(kappa), 0.0, 1.0);
+        for (int it = 0; it < 60; ++it) {
+            const double f = ((r - kappa) * r - 3.0) * r + kappa;  // decreasing in r on [0, 1)
+            if (f > 0.0) lo = r; else hi = r;
+            if (f == 0.0) break;
+            const double df = (3.0 * r - 2.0 * kappa) * r - 3.0;
+            double rn = r - f / df;
+            if (!(rn > lo && rn < hi)) rn = 0.5 * (lo + hi);
+            if (std::abs(rn - r) <= 1e-17 * std::max(r, 1e-300)) { r = rn; break; }
+            r = rn;
+        }
+        return r;
+    }
     // Newton on g(e) = κ e (2 − e) − (1 − e)(2 + 2e − e²), e = 1 − ‖r‖ in (0, 1], bracketed.
     double lo = 0.0, hi = 1.0;
     double e = std::clamp(1.0 - r_from_kappa_closed_form(kappa), 0.0, 1.0);

@@ -44,9 +44,10 @@ constexpr double kMaxKappa = 1e9;
 double log_norm(double kappa);
 /// The density γ at cos_angle = μ·ω (exact form above).
 double pdf_cos(double kappa, double cos_angle);
-inline double pdf(Vec3 mu, double kappa, Vec3 w) {
-    return pdf_cos(kappa, double(mu.x) * w.x + double(mu.y) * w.y + double(mu.z) * w.z);
-}
+/// The density at direction w for mean direction mu. Both are renormalised in double: a
+/// float unit vector is off by up to ~6e-8 in length, which would scale the density by
+/// e^{±6e-8 κ} (3e-4 at κ = 1e4) and break its normalisation.
+double pdf(Vec3 mu, double kappa, Vec3 w);
 /// Eq. 7 (large-κ form), for comparison only.
 double pdf_cos_large_kappa(double kappa, double cos_angle);
 
