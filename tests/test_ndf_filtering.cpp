@@ -15,6 +15,7 @@
 #include "sampling/rng.h"
 #include "scene/properties.h"
 #include "scene/registry.h"
+#include "material_test_util.h"
 #include "scratch_dir.h"
 #include "texture/normal_source.h"
 #include "texture/slope_source.h"
@@ -25,16 +26,8 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-std::shared_ptr<Material> make(const std::string &json_text) {
-    nlohmann::json j = nlohmann::json::parse(json_text);
-    return create_material(Properties(j, "material", std::make_shared<LoadContext>()));
-}
-
-Vec3 dir_deg(double theta, double phi) {
-    const double t = theta * kPi / 180.0, p = phi * kPi / 180.0;
-    const double z = theta == 90.0 ? 0.0 : std::cos(t);
-    return Vec3(float(std::sin(t) * std::cos(p)), float(std::sin(t) * std::sin(p)), float(z));
-}
+std::shared_ptr<Material> make(const std::string &json_text) { return test::make_material(json_text); }
+using test::dir_deg;
 
 Vec3 upper_dir(PCG32 &rng) {
     const float z = rng.next_float(), r = std::sqrt(std::max(0.f, 1.f - z * z)), ph = 2.f * float(kPi) * rng.next_float();

@@ -15,6 +15,7 @@
 #include "sampling/rng.h"
 #include "scene/properties.h"
 #include "scene/registry.h"
+#include "material_test_util.h"
 #include "texture/vmf_map.h"
 
 using namespace meso;
@@ -23,15 +24,8 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-std::shared_ptr<Material> make(const std::string &json_text) {
-    nlohmann::json j = nlohmann::json::parse(json_text);
-    return create_material(Properties(j, "material", std::make_shared<LoadContext>()));
-}
-
-Vec3 dir_deg(double theta, double phi) {
-    const double t = theta * kPi / 180.0, p = phi * kPi / 180.0;
-    return Vec3(float(std::sin(t) * std::cos(p)), float(std::sin(t) * std::sin(p)), float(std::cos(t)));
-}
+std::shared_ptr<Material> make(const std::string &json_text) { return test::make_material(json_text); }
+using test::dir_deg;
 
 /// ∫_{S²} γ dω = 2π ∫_0^2 pdf_cos(κ, 1 − t) dt on a geometric grid in t (the mass sits at t ~ 1/κ).
 double integrate_density(double kappa) {
