@@ -47,8 +47,10 @@
 //   ndf_kappa       texture | "auto"   none       NDF lobe κ_N per texel; "auto": from the length of the
 //                                                 heightmap's average normal (eq. 8); absent: no NDF
 //   exponent        texture            100        Blinn-Phong power s >= 0 (not with lobes)
-//   lobes           [{direction, kappa, weight}]  base BRDF as vMF lobes of half vectors (<= 8), direction in
-//                                                 the texel frame (z = normal), kappa a texture >= 0, weight > 0
+//   lobes           [{direction, kappa, weight}]  base BRDF as vMF lobes of half vectors (<= 8): direction in
+//                                                 the texel frame (z = normal), [x, y, z] or a texture whose RGB is
+//                                                 x, y, z (a BRDF map of lobes: values as stored, renormalised per
+//                                                 texel, so use float images); kappa a texture >= 0; weight > 0
 //                                                 (normalised to sum 1)
 //   diffuse         texture            0          kd (linearly filtered by the texture itself)
 //   specular        texture            1          ks
@@ -77,7 +79,7 @@ namespace {
 enum class FresnelKind { None, Schlick, Conductor };
 
 struct BaseLobe {
-    Vec3 dir{0.f, 0.f, 1.f};
+    std::shared_ptr<Texture> dir;  ///< RGB = the direction's x, y, z (renormalised per texel)
     std::shared_ptr<Texture> kappa;
     double weight = 1.0;
 };
@@ -358,10 +360,13 @@ std::shared_ptr<Material> make_vmf(const Properties &p) {
         double wsum = 0.0;
         for (const Properties &l : lp) {
             BaseLobe b;
-            const Vec3 d = l.get_vec3("direction");
-            const float len = length(d);
-            if (!(len > 0.f) || !std::isfinite(len)) l.fail("direction", "expected a non-zero, finite [x, y, z]");
-            b.dir = d / len;
+            b.dir = l.get_texture("direction");
+            if (b.dir->is_constant()) {
+                const Spectrum d = b.dir->mean();
+                const float len = length(Vec3(d.r, d.g, d.b));
+                if (!(len > 0.f) || !std::isfinite(len))
+                    l.fail("direction", "expected a non-zero, finite [x, y, z] (or a texture of directions)");
+            }
             b.kappa = l.get_texture("kappa");
             b.weight = l.get_float("weight", 1.f);
             if (!(b.weight > 0.0) || !std::isfinite(b.weight)) l.fail("weight", "expected a positive, finite weight");
@@ -428,7 +433,11 @@ std::shared_ptr<Material> make_vmf(const Properties &p) {
         for (size_t i = 0; i < base.size(); ++i) {
             double k = base[i].kappa->eval_float(tc);
             k = std::isfinite(k) && k > 0.0 ? k : (std::isinf(k) ? vmf::kMaxKappa : 0.0);
-            out[i].mu = normalize(F.to_world(base[i].dir));
+            const Spectrum dv = base[i].dir->eval(tc);
+            Vec3 d(dv.r, dv.g, dv.b);
+            const float dl = length(d);
+            d = dl > 0.f && std::isfinite(dl) ? d / dl : Vec3(0.f, 0.f, 1.f);
+            out[i].mu = normalize(F.to_world(d));
             out[i].kappa = std::min(vmf::convolve_kappa(k, kn), vmf::kMaxKappa);
             out[i].weight = base[i].weight;
         }

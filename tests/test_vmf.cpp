@@ -429,6 +429,23 @@ TEST(VmfMaterial, AdaptiveIsClosestToTheTexelAverage) {
     EXPECT_LT(adaptive, 0.25);
 }
 
+// A BRDF map of lobes: directions and κ from textures, resampled to the grid's texel centres.
+TEST(VmfMaterial, LobeMapsAreReadPerTexel) {
+    // 2 x 2 grid: texel centres (0.25, 0.25), (0.75, 0.25), ... on a checkerboard of scale 2.
+    auto m = make(R"({"type":"vmf","mode":"direct","resolution":[2,2],
+        "lobes":[{"direction":{"type":"checkerboard","color0":[0,0,1],"color1":[1,0,1],"scale":2},
+                  "kappa":{"type":"checkerboard","color0":50,"color1":500,"scale":2}}]})");
+    const Vec3 wo = dir_deg(30, 0), wi = dir_deg(30, 180);  // h = z
+    const Vec3 h(0.f, 0.f, 1.f);
+    ShadingContext c;
+    c.uv = Vec2(0.25f, 0.25f);  // check (0, 0): color0
+    EXPECT_NEAR(m->eval(c, wo, wi).g, vmf::pdf(h, 50.0, h) / (4.0 * dot(wo, h)), 1e-3);
+    c.uv = Vec2(0.75f, 0.25f);  // check (1, 0): color1, direction (1, 0, 1)/sqrt 2
+    const Vec3 mu = normalize(Vec3(1.f, 0.f, 1.f));  // retro-reflection along mu: h = mu
+    EXPECT_NEAR(m->eval(c, mu, mu).g / (vmf::pdf(mu, 500.0, mu) / 4.0), 1.0, 1e-3);
+    EXPECT_LT(m->eval(c, wo, wi).g, 1e-30);  // h = z is 45 degrees off that lobe
+}
+
 TEST(VmfMaterial, BadInputIsRejected) {
     for (const char *j : {R"({"type":"vmf","mode":"fancy"})", R"({"type":"vmf","exponent":-1})",
                           R"({"type":"vmf","lobes":[]})", R"({"type":"vmf","lobes":[{"direction":[0,0,0],"kappa":1}]})",
