@@ -1,0 +1,243 @@
+// Patch NDFs fitted with vMF mixtures (paper 004 eq. 2–4, §4.2); see patch_ndf.h.
+#include "prefilter/patch_ndf.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+#include "core/error.h"
+#include "render/vmf.h"
+
+namespace meso::prefilter {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+/// n-point Gauss–Legendre nodes and weights on [0, 1] (Newton on P_n, to double precision).
+void gauss_legendre01(int n, std::vector<double> &x, std::vector<double> &w) {
+    x.assign(size_t(n), 0.0), w.assign(size_t(n), 0.0);
+    for (int i = 0; i < (n + 1) / 2; ++i) {
+        double z = std::cos(kPi * (i + 0.75) / (n + 0.5)), dp = 1.0;
+        for (int it = 0; it < 100; ++it) {
+            double p0 = 1.0, p1 = 0.0;
+            for (int k = 1; k <= n; ++k) {
+                const double p2 = p1;
+                p1 = p0;
+                p0 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p2) / k;
+            }
+            dp = n * (z * p0 - p1) / (z * z - 1.0);
+            const double dz = p0 / dp;
+            z -= dz;
+            if (std::abs(dz) < 1e-16) break;
+        }
+        if (n == 1) z = 0.0, dp = 1.0;
+        const double wt = n == 1 ? 2.0 : 2.0 / ((1.0 - z * z) * dp * dp);
+        // z > 0 for the first half: node i (ascending) is 1/2 - z/2, its mirror 1/2 + z/2.
+        x[size_t(i)] = 0.5 - 0.5 * z, x[size_t(n - 1 - i)] = 0.5 + 0.5 * z;
+        w[size_t(i)] = w[size_t(n - 1 - i)] = 0.5 * wt;
+    }
+}
+
+struct Gl8 {
+    std::vector<double> x, w;
+    Gl8() { gauss_legendre01(8, x, w); }
+};
+const Gl8 &gl8() {
+    static const Gl8 g;
+    return g;
+}
+
+void validate(const Heightfield &hf, int factor, const PatchNdfOptions &opt) {
+    if (hf.width() < 1 || hf.height() < 1) throw MesoError("patch NDF: empty heightfield");
+    if (factor < 1 || hf.width() % factor != 0 || hf.height() % factor != 0)
+        throw MesoError(fmt::format("patch NDF: factor {} must be >= 1 and divide the heightfield size {} x {}", factor,
+                                    hf.width(), hf.height()));
+    if (opt.samples_per_cell < 1 || opt.samples_per_cell > 32)
+        throw MesoError(fmt::format("patch NDF: samples_per_cell must be in 1..32, got {}", opt.samples_per_cell));
+    if (!std::isfinite(opt.height_scale))
+        throw MesoError(fmt::format("patch NDF: height_scale must be finite, got {}", opt.height_scale));
+    if (!(opt.cell_size > 0.0) || !std::isfinite(opt.cell_size))
+        throw MesoError(fmt::format("patch NDF: cell_size must be finite and > 0, got {}", opt.cell_size));
+    if (opt.threads < 0) throw MesoError(fmt::format("patch NDF: threads must be >= 0, got {}", opt.threads));
+    if (opt.em.lobes < 1) throw MesoError(fmt::format("patch NDF: em.lobes must be >= 1, got {}", opt.em.lobes));
+}
+
+void validate_patch(const Heightfield &hf, int factor, int I, int J) {
+    const int nx = hf.width() / factor, ny = hf.height() / factor;
+    if (I < 0 || I >= nx || J < 0 || J >= ny)
+        throw MesoError(fmt::format("patch NDF: patch ({}, {}) out of range: {} x {} patches at factor {}", I, J, nx,
+                                    ny, factor));
+}
+
+/// patch_normals without validation; gl nodes/weights precomputed.
+void patch_normals_impl(const Heightfield &hf, int factor, int I, int J, const PatchNdfOptions &opt,
+                        const std::vector<double> &gx, const std::vector<double> &gw, std::vector<Vec3> &dirs,
+                        std::vector<double> &weights) {
+    const int n = int(gx.size());
+    const double k = opt.height_scale / opt.cell_size;  // height per cell -> world slope
+    const double inv_area = 1.0 / (double(factor) * double(factor));
+    dirs.resize(size_t(factor) * factor * n * n);
+    weights.resize(dirs.size());
+    size_t q = 0;
+    for (int jj = 0; jj < factor; ++jj)
+        for (int ii = 0; ii < factor; ++ii) {
+            const int64_t i = int64_t(I) * factor + ii, j = int64_t(J) * factor + jj;
+            const double h00 = hf.vertex(i, j), h10 = hf.vertex(i + 1, j), h01 = hf.vertex(i, j + 1),
+                         h11 = hf.vertex(i + 1, j + 1);
+            // h(x, y) = h00 + e x + f y + g x y on the unit cell.
+            const double e = h10 - h00, f = h01 - h00, g = h00 + h11 - h10 - h01;
+            for (int b = 0; b < n; ++b)       // y node
+                for (int a = 0; a < n; ++a) {  // x node
+                    const double sx = (e + g * gx[size_t(b)]) * k, sy = (f + g * gx[size_t(a)]) * k;
+                    const double len = std::sqrt(1.0 + sx * sx + sy * sy), inv = 1.0 / len;
+                    dirs[q] = Vec3(float(-sx * inv), float(-sy * inv), float(inv));
+                    weights[q] = gw[size_t(a)] * gw[size_t(b)] * inv_area * len;
+                    ++q;
+                }
+        }
+}
+
+PatchNdf fit_impl(const Heightfield &hf, int factor, int I, int J, const PatchNdfOptions &opt,
+                  const std::vector<double> &gx, const std::vector<double> &gw, std::vector<Vec3> &dirs,
+                  std::vector<double> &weights) {
+    patch_normals_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
+    PatchNdf out;
+    double area = 0.0;
+    for (double w : weights) area += w;
+    VmfMixture mix = fit_vmf_mixture(dirs.data(), weights.data(), dirs.size(), opt.em);
+    out.lobes = std::move(mix.lobes);
+    out.log_likelihood = mix.log_likelihood;
+    out.iterations = mix.iterations;
+    out.converged = mix.converged;
+    out.area_ratio = area;
+    const double p = mixture_projected_area(out.lobes);
+    out.amplitude = p > 0.0 ? 1.0 / p : 0.0;
+    out.projected_area_check = area * p;
+    return out;
+}
+
+}  // namespace
+
+void patch_normals(const Heightfield &hf, int factor, int I, int J, const PatchNdfOptions &opt,
+                   std::vector<Vec3> &dirs, std::vector<double> &weights) {
+    validate(hf, factor, opt);
+    validate_patch(hf, factor, I, J);
+    std::vector<double> gx, gw;
+    gauss_legendre01(opt.samples_per_cell, gx, gw);
+    patch_normals_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
+}
+
+PatchNdf fit_patch_ndf(const Heightfield &hf, int factor, int I, int J, const PatchNdfOptions &opt) {
+    validate(hf, factor, opt);
+    validate_patch(hf, factor, I, J);
+    std::vector<double> gx, gw;
+    gauss_legendre01(opt.samples_per_cell, gx, gw);
+    std::vector<Vec3> dirs;
+    std::vector<double> weights;
+    return fit_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
+}
+
+std::vector<PatchNdf> fit_svndf(const Heightfield &hf, int factor, const PatchNdfOptions &opt) {
+    validate(hf, factor, opt);
+    // Options fit_vmf_mixture would reject: fail once here rather than inside a TBB task.
+    {
+        const Vec3 z(0.f, 0.f, 1.f);
+        const double one = 1.0;
+        (void)fit_vmf_mixture(&z, &one, 1, opt.em);
+    }
+    const int nx = hf.width() / factor, ny = hf.height() / factor;
+    std::vector<double> gx, gw;
+    gauss_legendre01(opt.samples_per_cell, gx, gw);
+    std::vector<PatchNdf> out(size_t(nx) * ny);
+    auto run_range = [&](int begin, int end) {
+        std::vector<Vec3> dirs;
+        std::vector<double> weights;
+        for (int p = begin; p < end; ++p) out[size_t(p)] = fit_impl(hf, factor, p % nx, p / nx, opt, gx, gw, dirs, weights);
+    };
+    const int count = nx * ny;
+    if (opt.threads == 1) {
+        run_range(0, count);
+    } else {
+        auto body = [&] {
+            tbb::parallel_for(tbb::blocked_range<int>(0, count, 1),
+                              [&](const tbb::blocked_range<int> &r) { run_range(r.begin(), r.end()); });
+        };
+        if (opt.threads > 1) {
+            tbb::task_arena arena(opt.threads);
+            arena.execute(body);
+        } else {
+            body();
+        }
+    }
+    return out;
+}
+
+double patch_ndf_eval(const PatchNdf &ndf, Vec3 w) {
+    if (!(w.z > 0.f)) return 0.0;
+    double d = 0.0;
+    for (const VmfLobe &l : ndf.lobes) d += l.weight * vmf::pdf(l.mu, l.kappa, w);
+    return ndf.amplitude * d;
+}
+
+double vmf_projected_area(Vec3 mu, double kappa) {
+    const double mx = mu.x, my = mu.y, mz = mu.z;
+    const double ml = std::sqrt(mx * mx + my * my + mz * mz);
+    if (!(ml > 0.0)) return 0.0;
+    const double c = mz / ml, s = std::sqrt(mx * mx + my * my) / ml;  // cos, sin of μ's polar angle
+    kappa = std::clamp(std::isnan(kappa) ? 0.0 : kappa, 0.0, vmf::kMaxKappa);
+
+    // Lobe frame: ω = u μ + sqrt(1 − u²) (cos φ e1 + sin φ e2), ω_z = a + b cos φ with
+    // a = u c, b = sqrt(1 − u²) s ≥ 0. Mean over φ of max(0, a + b cos φ):
+    //   a ≥ b: a;  a ≤ −b: 0;  else (a arccos(−a/b) + sqrt(b² − a²)) / π   (C¹ in u).
+    // u is the vMF's μ·ω; with v its CDF (u = vmf::sample_cos(κ, v)) P = ∫_0^1 g(u(v)) dv.
+    auto g = [&](double v) {
+        double omw;
+        const double u = vmf::sample_cos(kappa, v, &omw);
+        const double a = u * c, b = std::sqrt(std::max(0.0, omw * (2.0 - omw))) * s;
+        if (a >= b) return a;
+        if (a <= -b) return 0.0;
+        return (a * std::acos(std::clamp(-a / b, -1.0, 1.0)) + std::sqrt(std::max(0.0, b * b - a * a))) / kPi;
+    };
+    // v of a given 1 − u (the CDF), for the kinks of g.
+    auto v_of = [&](double omw) {
+        if (!(kappa > 1e-300)) return 1.0 - 0.5 * omw;
+        return 1.0 - std::expm1(-kappa * omw) / std::expm1(-2.0 * kappa);
+    };
+    // Panels: graded geometrically towards v = 0 (u → −1, where u(v) ~ log v for large κ) and
+    // v = 1 (u → 1), split at the kinks ψ = |π/2 − θ_μ| and π − |π/2 − θ_μ| (the circle of
+    // directions at angle ψ from μ touching the horizon from above / below).
+    double bp[64];
+    int nb = 0;
+    bp[nb++] = 0.0, bp[nb++] = 1.0;
+    for (int k = 1; k <= 30; ++k) bp[nb++] = std::ldexp(1.0, -k);
+    for (int k = 2; k <= 14; ++k) bp[nb++] = 1.0 - std::ldexp(1.0, -k);
+    const double theta = std::atan2(s, c), psi1 = std::abs(0.5 * kPi - theta), psi2 = kPi - psi1;
+    for (double psi : {psi1, psi2}) {
+        const double omw = 2.0 * std::sin(0.5 * psi) * std::sin(0.5 * psi);  // 1 − cos ψ
+        const double v = v_of(omw);
+        if (v > 0.0 && v < 1.0) bp[nb++] = v;
+    }
+    std::sort(bp, bp + nb);
+    const Gl8 &q = gl8();
+    double sum = 0.0;
+    for (int p = 0; p + 1 < nb; ++p) {
+        const double lo = bp[p], hi = bp[p + 1], h = hi - lo;
+        if (!(h > 0.0)) continue;
+        double ps = 0.0;
+        for (size_t i = 0; i < q.x.size(); ++i) ps += q.w[i] * g(lo + h * q.x[i]);
+        sum += h * ps;
+    }
+    return sum;
+}
+
+double mixture_projected_area(const std::vector<VmfLobe> &lobes) {
+    double p = 0.0;
+    for (const VmfLobe &l : lobes) p += l.weight * vmf_projected_area(l.mu, l.kappa);
+    return p;
+}
+
+}  // namespace meso::prefilter
