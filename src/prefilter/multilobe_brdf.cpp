@@ -1,0 +1,192 @@
+// The multi-lobe BRDF of paper 004 eq. 5 / eq. 11 by a fixed per-lobe quadrature of the patch
+// NDF (see multilobe_brdf.h for the model, the quadrature and the sampling).
+#include "prefilter/multilobe_brdf.h"
+#include <fmt/format.h>
+#include <algorithm>
+#include <cmath>
+#include "core/error.h"
+#include "render/vmf.h"
+
+namespace meso::prefilter {
+
+namespace {
+constexpr double kPi = 3.14159265358979323846;
+}
+
+void gauss_legendre_01(int n, std::vector<double> &x, std::vector<double> &w) {
+    if (n < 1) throw MesoError(fmt::format("gauss_legendre_01: n must be >= 1, got {}", n));
+    x.assign(size_t(n), 0.0);
+    w.assign(size_t(n), 0.0);
+    // Roots of P_n on [-1, 1] by Newton from the Tricomi initial guess, then mapped to [0, 1].
+    for (int i = 0; i < (n + 1) / 2; ++i) {
+        double z = std::cos(kPi * (i + 0.75) / (n + 0.5)), dp = 1.0;
+        for (int it = 0; it < 100; ++it) {
+            double p0 = 1.0, p1 = 0.0;
+            for (int k = 1; k <= n; ++k) {
+                const double p2 = p1;
+                p1 = p0;
+                p0 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p2) / k;
+            }
+            dp = n * (z * p0 - p1) / (z * z - 1.0);
+            const double dz = p0 / dp;
+            z -= dz;
+            if (std::abs(dz) < 1e-16) break;
+        }
+        // Recompute the derivative at the converged root for the weight.
+        double p0 = 1.0, p1 = 0.0;
+        for (int k = 1; k <= n; ++k) {
+            const double p2 = p1;
+            p1 = p0;
+            p0 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p2) / k;
+        }
+        dp = n * (z * p0 - p1) / (z * z - 1.0);
+        const double wt = 2.0 / ((1.0 - z * z) * dp * dp);
+        // z > 0 for i < n/2: node i is 0.5 + z/2 at the top, its mirror at the bottom.
+        x[size_t(n - 1 - i)] = 0.5 + 0.5 * z;
+        x[size_t(i)] = 0.5 - 0.5 * z;
+        w[size_t(n - 1 - i)] = w[size_t(i)] = 0.5 * wt;
+    }
+    if (n % 2 == 1) x[size_t(n / 2)] = 0.5;  // exact middle node
+}
+
+MultiLobeBrdf::MultiLobeBrdf(std::shared_ptr<const Material> base, const PatchNdf &ndf, const QuadratureOptions &opt)
+    : m_base(std::move(base)), m_opt(opt), m_lobes(ndf.lobes.size()) {
+    if (!m_base) throw MesoError("multilobe BRDF: base material is null");
+    const uint32_t bf = m_base->flags();
+    if (bf & (BSDF_Delta | BSDF_Transmission))
+        throw MesoError(fmt::format("multilobe BRDF: base material must be reflection-only without delta lobes: {}",
+                                    m_base->to_string()));
+    if ((bf & BSDF_Smooth) == 0) throw MesoError("multilobe BRDF: base material has no smooth lobe");
+    if (opt.polar < 1 || opt.polar > 64)
+        throw MesoError(fmt::format("multilobe BRDF: polar node count must be in 1..64, got {}", opt.polar));
+    if (opt.azimuth < 1 || opt.azimuth > 256)
+        throw MesoError(fmt::format("multilobe BRDF: azimuth node count must be in 1..256, got {}", opt.azimuth));
+    if (ndf.lobes.empty()) throw MesoError("multilobe BRDF: the patch NDF has no lobes");
+    if (!std::isfinite(ndf.amplitude) || ndf.amplitude < 0.0)
+        throw MesoError(fmt::format("multilobe BRDF: NDF amplitude must be finite and >= 0, got {}", ndf.amplitude));
+
+    std::vector<double> gx, gw;
+    gauss_legendre_01(opt.polar, gx, gw);
+    for (size_t j = 0; j < ndf.lobes.size(); ++j) {
+        const VmfLobe &l = ndf.lobes[j];
+        const double mx = l.mu.x, my = l.mu.y, mz = l.mu.z, ml = std::sqrt(mx * mx + my * my + mz * mz);
+        if (!std::isfinite(l.kappa) || l.kappa < 0.0 || !std::isfinite(l.weight) || l.weight < 0.0 ||
+            !(ml > 0.0) || !std::isfinite(ml))
+            throw MesoError(fmt::format("multilobe BRDF: invalid lobe {} (kappa {}, weight {}, |mu| {})", j, l.kappa,
+                                        l.weight, ml));
+        if (l.weight == 0.0) continue;
+        const double kappa = std::min(l.kappa, vmf::kMaxKappa);
+        const Vec3 mu(float(mx / ml), float(my / ml), float(mz / ml));
+        Vec3 s, t;
+        coordinate_system(mu, s, t);
+        for (int a = 0; a < opt.polar; ++a) {
+            // w = μ·ω at CDF value u (γ dω = du dφ / 2π), 1 − w without cancellation.
+            double omw = 0.0;
+            const double w = vmf::sample_cos(kappa, gx[size_t(a)], &omw);
+            const double sin_t = std::sqrt(std::max(0.0, omw * (1.0 + w)));
+            const double shift = (a % 2) ? 0.0 : 0.5;  // alternate rings interleave
+            for (int b = 0; b < opt.azimuth; ++b) {
+                const double phi = 2.0 * kPi * (b + shift) / opt.azimuth;
+                const double cx = sin_t * std::cos(phi), cy = sin_t * std::sin(phi);
+                double dx = cx * s.x + cy * t.x + w * mx / ml;
+                double dy = cx * s.y + cy * t.y + w * my / ml;
+                double dz = cx * s.z + cy * t.z + w * mz / ml;
+                const double len = std::sqrt(dx * dx + dy * dy + dz * dz);
+                dx /= len, dy /= len, dz /= len;
+                if (!(dz > 0.0)) continue;  // D = 0 below the macro horizon (eq. 4)
+                const Vec3 n{float(dx), float(dy), float(dz)};
+                if (!(n.z > 0.f)) continue;
+                const double c = ndf.amplitude * l.weight * gw[size_t(a)] / opt.azimuth;
+                if (!(c > 0.0)) continue;
+                m_nodes.push_back({Frame(n), c, int(j)});
+                m_total += c;
+                m_projected += c * dz;
+            }
+        }
+    }
+}
+
+double MultiLobeBrdf::selection_total(const Vec3 &wo) const {
+    double total = 0.0;
+    for (const NdfNode &k : m_nodes)
+        if (k.frame.to_local(wo).z > 0.f) total += k.weight;  // the test of pdf()
+    return total;
+}
+
+Spectrum MultiLobeBrdf::eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
+    if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+    double r = 0.0, g = 0.0, b = 0.0;
+    for (const NdfNode &k : m_nodes) {
+        const Vec3 lo = k.frame.to_local(wo);
+        if (!(lo.z > 0.f)) continue;
+        const Vec3 li = k.frame.to_local(wi);
+        if (!(li.z > 0.f)) continue;
+        const Spectrum f = m_base->eval(ctx, lo, li);  // f · <ω_k, ωi>
+        r += k.weight * f.r, g += k.weight * f.g, b += k.weight * f.b;
+    }
+    return Spectrum(float(r), float(g), float(b));
+}
+
+float MultiLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
+    if (!(wo.z > 0.f) || !(wi.z > 0.f)) return 0.f;
+    double total = 0.0, sum = 0.0;
+    for (const NdfNode &k : m_nodes) {
+        const Vec3 lo = k.frame.to_local(wo);
+        if (!(lo.z > 0.f)) continue;  // the same test as selection_total (dot(wo, n) == lo.z)
+        total += k.weight;
+        const Vec3 li = k.frame.to_local(wi);
+        if (!(li.z > 0.f)) continue;
+        sum += k.weight * double(m_base->pdf(ctx, lo, li));
+    }
+    return total > 0.0 ? float(sum / total) : 0.f;
+}
+
+bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
+    if (!(wo.z > 0.f)) return false;
+    // Node choice with probability c_k [F_k wo .z > 0] / Σ: two passes over the same test.
+    const double total = selection_total(wo);
+    if (!(total > 0.0)) return false;
+    const double target = double(u_lobe) * total;
+    const NdfNode *chosen = nullptr;
+    double cum = 0.0, u_rescaled = 0.0;
+    for (const NdfNode &k : m_nodes) {
+        if (!(k.frame.to_local(wo).z > 0.f)) continue;
+        chosen = &k;
+        if (target < cum + k.weight) {
+            u_rescaled = (target - cum) / k.weight;
+            break;
+        }
+        cum += k.weight;
+        u_rescaled = 1.0;  // rounding: falls through to the last eligible node
+    }
+    if (!chosen) return false;
+    // The remaining fraction of u_lobe is handed to the base for its own lobe choice.
+    const float ub = std::min(std::max(float(u_rescaled), 0.f), 0x1.fffffep-1f);
+    BSDFSample bs;
+    const Vec3 lo = chosen->frame.to_local(wo);
+    if (!m_base->sample(ctx, lo, ub, u, bs)) return false;
+    if (bs.flags & BSDF_Delta) return false;  // excluded in the constructor; defensive
+    const Vec3 wi = normalize(chosen->frame.to_world(bs.wi));
+    if (!(wi.z > 0.f)) return false;  // below the macro horizon: the path ends (pdf excludes it)
+    const float p = pdf(ctx, wo, wi);
+    if (!(p > 0.f) || !std::isfinite(p)) return false;
+    const Spectrum f = eval(ctx, wo, wi);
+    out.wi = wi;
+    out.pdf = p;
+    out.weight = Spectrum(f.r / p, f.g / p, f.b / p);
+    out.eta = 1.f;
+    out.flags = bs.flags;
+    return true;
+}
+
+uint32_t MultiLobeBrdf::flags() const { return m_base->flags() & BSDF_Smooth & BSDF_Reflection; }
+
+Spectrum MultiLobeBrdf::albedo_hint(const ShadingContext &ctx) const { return m_base->albedo_hint(ctx); }
+
+std::string MultiLobeBrdf::to_string() const {
+    return fmt::format("MultiLobeBrdf[base={}, lobes={}, nodes={} ({}x{} per lobe), sum c={:.6g}, sum c z={:.6g}]",
+                       m_base->to_string(), m_lobes, m_nodes.size(), m_opt.polar, m_opt.azimuth, m_total,
+                       m_projected);
+}
+
+}  // namespace meso::prefilter

@@ -1,0 +1,117 @@
+// The multi-lobe BRDF f'_low of paper 004 (Wu et al. 2019): eq. 5 (after Han et al. 2007),
+// used as eq. 11 with the patch NDF D_uv of prefilter/patch_ndf.h (eq. 4):
+//
+//   ρ(ωi, ωo; D, f) = (1 / cos θi) ∫_{H²} f(R_ω(ωi), R_ω(ωo)) <ω, ωi> D(ω) dω          (eq. 5)
+//
+// f is an isotropic base Material, R_ω the rotation into the frame of the micro-normal ω, and
+// D(ω) = amplitude Σ_j a_j γ(ω; μ_j, κ_j) on the upper hemisphere (0 below; patch_ndf_eval).
+// meso's Material::eval returns the BRDF times |cos θi|, so eval here returns
+//
+//   ρ cos θi = ∫_{H²} f(R_ω ωi, R_ω ωo) <ω, ωi> D(ω) dω = ∫_{H²} base.eval(R_ω ωo, R_ω ωi) D(ω) dω
+//
+// because base.eval already includes the cosine w.r.t. ITS normal, ω, i.e. <ω, ωi>⁺. Terms with
+// <ω, ωo> ≤ 0 or <ω, ωi> ≤ 0 are 0 (the base is reflection-only in its own frame), and the
+// macro directions must be above the macro horizon (ωo.z > 0, ωi.z > 0).
+//
+// Modelling note. Eq. 5 is implemented exactly as printed: there is NO projected-area factor
+// <ω, ωo> / <ω_g, ωo> (the area of micro-facet ω seen from the viewer per unit of base area
+// seen from the viewer). Without it the microsurface area D dω (∫ D dω = area_ratio ≥ 1,
+// patch_ndf.h) reflects as if every facet were fully visible and facing the viewer: for a
+// white Lambertian base the directional albedo at normal incidence is ≈ ∫_{ωi·ω>0 region} D dω,
+// i.e. up to area_ratio > 1, and at grazing ωo facets tilted towards the viewer are not
+// weighted up. In paper 004 the scaling functions R / S·T (§4.3–§6) absorb this (they are
+// fitted ratios of effective BRDFs), so f'_low alone need not conserve energy. Measured
+// (MultiLobeBrdf.EnergyOfRealPatch: white Lambertian, gaussian map patch with area_ratio
+// 1.0955): albedo 1.048 for θo ≤ 60° (+4.8%), 0.703 at 80°, 0.586 at 89° (facets facing away
+// from ωo are cut off by <ω, ωo> > 0 and nothing re-weights the visible ones).
+//
+// Deterministic quadrature. D is replaced by a fixed weighted set of nodes,
+//   D(ω) dω ≈ Σ_k c_k δ(ω − ω_k),
+// built once per PatchNdf: for every lobe j, in the lobe's frame (axis μ_j), the variable
+// u ∈ [0, 1) is the vMF's CDF in w = μ·ω (w = vmf::sample_cos(κ, u)), so that γ dω = du dφ/(2π)
+// exactly; u gets an n_u-point Gauss–Legendre rule and φ an n_φ-point uniform (midpoint) rule,
+// shifted by half a step on alternate rings (better coverage of the lobe at no cost). Because u
+// is the lobe's own CDF, the rule resolves the lobe for every κ in [0, 1e9] (κ = 0 is the
+// uniform sphere); nodes with ω_k.z ≤ 0 are dropped (D = 0 there), which is how the
+// hemisphere restriction of eq. 4 enters. c_k = amplitude · a_j · w_u · (1 / n_φ). Then
+//
+//   eval(ωo, ωi) = Σ_k c_k base.eval(F_k ωo, F_k ωi)              (F_k: to the frame of ω_k)
+//
+// deterministic, with a quadrature error that depends on how smooth the integrand is on the
+// scale of the lobe (see the tests: kinks of the clamped cosines and of the horizon limit it
+// for wide lobes; a glossy base narrower than the lobe is resolved only as n_u·n_φ discrete
+// highlights — the price of a deterministic, exactly sampleable rule).
+//
+// Sampling. Node k is chosen with probability P_k(ωo) = c_k [F_k ωo .z > 0] / Σ, then the base
+// is sampled in node k's frame; a direction below the macro horizon ends the path (sample
+// returns false). The pdf is the exact mixture density of that procedure,
+//   pdf(ωi) = [ωi.z > 0] Σ_k P_k(ωo) base.pdf(F_k ωo, F_k ωi),
+// so the χ² test holds and weight = eval / pdf exactly. Its integral over the upper hemisphere
+// is < 1 by the probability of sampling below the horizon.
+//
+// Reciprocity. eval(ωo, ωi) / cos θi = Σ c_k f <ω_k, ωi> / cos θi is not symmetric in
+// (ωi, ωo) (the swap gives <ω_k, ωo> / cos θo), so is_reciprocal() is false.
+//
+// Scope. The base must be isotropic (the tangent of F_k is arbitrary), reflection-only and
+// without delta lobes (smooth conductor, smooth plastic coat: rejected with MesoError).
+//
+// Cost: eval and pdf are O(N) base evaluations, N = Σ kept nodes ≤ lobes · n_u · n_φ (6 · 4 · 6 =
+// 144 by default); sample is O(N) for the node choice plus pdf and eval (3 passes).
+#pragma once
+#include <memory>
+#include <string>
+#include <vector>
+#include "core/frame.h"
+#include "prefilter/patch_ndf.h"
+#include "render/material.h"
+
+namespace meso::prefilter {
+
+struct QuadratureOptions {
+    int polar = 4;    ///< n_u: Gauss–Legendre nodes in the vMF CDF variable per lobe, 1..64
+    int azimuth = 6;  ///< n_φ: uniform azimuthal nodes per ring, 1..256
+};
+
+/// One node of the quadrature of D: micro-normal ω_k (its frame) and weight c_k.
+struct NdfNode {
+    Frame frame;       ///< frame.n = ω_k (unit, z > 0)
+    double weight;     ///< c_k
+    int lobe;          ///< index of the lobe it comes from
+};
+
+class MultiLobeBrdf final : public Material {
+public:
+    /// Throws MesoError when base is null, has delta or transmission lobes, the NDF has no lobes
+    /// or invalid ones (non-finite or negative κ or weight, zero μ, non-finite amplitude), or
+    /// the options are out of range.
+    MultiLobeBrdf(std::shared_ptr<const Material> base, const PatchNdf &ndf, const QuadratureOptions &opt = {});
+
+    Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
+    float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
+    bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override;
+    uint32_t flags() const override;
+    Spectrum albedo_hint(const ShadingContext &ctx) const override;
+    bool is_reciprocal() const override { return false; }
+    std::string to_string() const override;
+
+    const std::vector<NdfNode> &nodes() const { return m_nodes; }
+    /// Σ_k c_k: the quadrature of ∫_{H²} D dω (≈ area_ratio for a good fit).
+    double total_weight() const { return m_total; }
+    /// Σ_k c_k ω_k.z: the quadrature of eq. 3's left side (1 up to the quadrature error).
+    double projected_area() const { return m_projected; }
+
+private:
+    /// Σ_k c_k [F_k wo .z > 0]: the normaliser of the node choice P_k(wo).
+    double selection_total(const Vec3 &wo) const;
+
+    std::shared_ptr<const Material> m_base;
+    std::vector<NdfNode> m_nodes;
+    QuadratureOptions m_opt;
+    size_t m_lobes = 0;
+    double m_total = 0.0, m_projected = 0.0;
+};
+
+/// Gauss–Legendre nodes and weights on [0, 1] (n ≥ 1; Newton on P_n, double precision).
+void gauss_legendre_01(int n, std::vector<double> &x, std::vector<double> &w);
+
+}  // namespace meso::prefilter
