@@ -57,3 +57,20 @@ TEST(Distribution2D, PdfMatchesSampling) {
         EXPECT_GT(pdf, 0.f);
     }
 }
+
+// Gauss–Legendre on [0, 1] (core/quadrature.h): exact for polynomials of degree <= 2n - 1.
+#include "core/quadrature.h"
+TEST(Quadrature, GaussLegendreIsExactToDegree2nMinus1) {
+    for (int n : {1, 2, 3, 4, 7, 8, 16, 32}) {
+        std::vector<double> x, w;
+        meso::gauss_legendre_01(n, x, w);
+        for (int d = 0; d <= 2 * n - 1; ++d) {
+            double s = 0.0;
+            for (int i = 0; i < n; ++i) s += w[i] * std::pow(x[i], d);
+            EXPECT_NEAR(s, 1.0 / (d + 1), 1e-13) << "n " << n << " degree " << d;
+        }
+        for (int i = 1; i < n; ++i) EXPECT_LT(x[i - 1], x[i]);
+    }
+    std::vector<double> x, w;
+    EXPECT_THROW(meso::gauss_legendre_01(0, x, w), std::exception);
+}

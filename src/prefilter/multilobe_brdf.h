@@ -111,7 +111,5 @@ private:
     double m_total = 0.0, m_projected = 0.0;
 };
 
-/// Gauss–Legendre nodes and weights on [0, 1] (n ≥ 1; Newton on P_n, double precision).
-void gauss_legendre_01(int n, std::vector<double> &x, std::vector<double> &w);
 
 }  // namespace meso::prefilter

@@ -1,5 +1,6 @@
 // Patch NDFs fitted with vMF mixtures (paper 004 eq. 2–4, §4.2); see patch_ndf.h.
 #include "prefilter/patch_ndf.h"
+#include "core/quadrature.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -17,34 +18,9 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 
-/// n-point Gauss–Legendre nodes and weights on [0, 1] (Newton on P_n, to double precision).
-void gauss_legendre01(int n, std::vector<double> &x, std::vector<double> &w) {
-    x.assign(size_t(n), 0.0), w.assign(size_t(n), 0.0);
-    for (int i = 0; i < (n + 1) / 2; ++i) {
-        double z = std::cos(kPi * (i + 0.75) / (n + 0.5)), dp = 1.0;
-        for (int it = 0; it < 100; ++it) {
-            double p0 = 1.0, p1 = 0.0;
-            for (int k = 1; k <= n; ++k) {
-                const double p2 = p1;
-                p1 = p0;
-                p0 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p2) / k;
-            }
-            dp = n * (z * p0 - p1) / (z * z - 1.0);
-            const double dz = p0 / dp;
-            z -= dz;
-            if (std::abs(dz) < 1e-16) break;
-        }
-        if (n == 1) z = 0.0, dp = 1.0;
-        const double wt = n == 1 ? 2.0 : 2.0 / ((1.0 - z * z) * dp * dp);
-        // z > 0 for the first half: node i (ascending) is 1/2 - z/2, its mirror 1/2 + z/2.
-        x[size_t(i)] = 0.5 - 0.5 * z, x[size_t(n - 1 - i)] = 0.5 + 0.5 * z;
-        w[size_t(i)] = w[size_t(n - 1 - i)] = 0.5 * wt;
-    }
-}
-
 struct Gl8 {
     std::vector<double> x, w;
-    Gl8() { gauss_legendre01(8, x, w); }
+    Gl8() { gauss_legendre_01(8, x, w); }
 };
 const Gl8 &gl8() {
     static const Gl8 g;
@@ -127,7 +103,7 @@ void patch_normals(const Heightfield &hf, int factor, int I, int J, const PatchN
     validate(hf, factor, opt);
     validate_patch(hf, factor, I, J);
     std::vector<double> gx, gw;
-    gauss_legendre01(opt.samples_per_cell, gx, gw);
+    gauss_legendre_01(opt.samples_per_cell, gx, gw);
     patch_normals_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
 }
 
@@ -135,7 +111,7 @@ PatchNdf fit_patch_ndf(const Heightfield &hf, int factor, int I, int J, const Pa
     validate(hf, factor, opt);
     validate_patch(hf, factor, I, J);
     std::vector<double> gx, gw;
-    gauss_legendre01(opt.samples_per_cell, gx, gw);
+    gauss_legendre_01(opt.samples_per_cell, gx, gw);
     std::vector<Vec3> dirs;
     std::vector<double> weights;
     return fit_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
@@ -151,7 +127,7 @@ std::vector<PatchNdf> fit_svndf(const Heightfield &hf, int factor, const PatchNd
     }
     const int nx = hf.width() / factor, ny = hf.height() / factor;
     std::vector<double> gx, gw;
-    gauss_legendre01(opt.samples_per_cell, gx, gw);
+    gauss_legendre_01(opt.samples_per_cell, gx, gw);
     std::vector<PatchNdf> out(size_t(nx) * ny);
     auto run_range = [&](int begin, int end) {
         std::vector<Vec3> dirs;

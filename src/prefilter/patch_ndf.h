@@ -56,7 +56,7 @@
 //
 // Cost: W·H·n² normals in all (independent of F), each costing O(K) exp per EM iteration
 // (up to em.max_iterations; large patches converge more slowly), plus ~300 cheap evaluations
-// per lobe for P. Measured (PatchNdf.DISABLED_TimingFbm1024, 2 shared cores, 6 lobes): a
+// per lobe for P. Measured (MESO_TIMING=1 meso_tests --gtest_filter=PatchNdf.TimingFbm1024, 2 shared cores, 6 lobes): a
 // 1024² fbm map takes 35 s at F = 8 (16384 patches, 55 EM iterations on average) and 57 s at
 // F = 64 (256 patches, 97 iterations, mostly not converged) with n = 4; 9 s and 13 s with n = 2.
 #pragma once
