@@ -318,3 +318,15 @@ TEST_F(Compare, ErrorsExitNonZeroWithOneLine) {
               1);
     EXPECT_TRUE(starts_with(err, "meso: error: cannot write '" + path("no/err.png") + "': ")) << err;
 }
+
+// OpenEXR sorts channels by name; write_exr + read_image must still round-trip an image with
+// many channels in order (prefilter/model.h's lobes.exr has 31).
+TEST(ImageChannels, ManyChannelsRoundTripInOrder) {
+    meso::Image img(3, 2, 31);
+    for (size_t i = 0; i < img.data.size(); ++i) img.data[i] = float(i % 31) + 0.001f * float(i / 31);
+    const std::string path = ::testing::TempDir() + "/meso_many_channels.exr";
+    meso::write_exr(path, img);
+    meso::Image back = meso::read_image(path);
+    ASSERT_EQ(back.channels, 31);
+    for (size_t i = 0; i < img.data.size(); ++i) ASSERT_EQ(back.data[i], img.data[i]) << "index " << i;
+}

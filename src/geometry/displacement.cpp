@@ -67,6 +67,7 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles) {
     const float scale = p.get_float("scale", 1.f), offset = p.get_float("offset", 0.f);
     if (!std::isfinite(scale)) p.fail("scale", "expected a finite number (world units per map unit)");
     if (!std::isfinite(offset)) p.fail("offset", "expected a finite number (world units)");
+    d.scale = scale, d.offset = offset;
     if (p.has("tiling")) {
         const nlohmann::json &t = p.raw("tiling");
         if (t.is_number()) {

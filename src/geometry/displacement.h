@@ -23,6 +23,7 @@ struct Displacement {
     std::shared_ptr<const Heightfield> field;  ///< heights in world units (offset + scale * map)
     std::string source;                        ///< map file or generator, for messages and --plan
     float tiling_u = 1.f, tiling_v = 1.f;      ///< repeats of the map over uv [0,1]
+    float scale = 1.f, offset = 0.f;           ///< field = offset + scale * map (for LoD maps in map units)
     DisplacementMode mode = DisplacementMode::Shell;
     SubdivScheme scheme = SubdivScheme::Bilinear;
     int level = -1;                     ///< tessellation level; -1: to the map's resolution

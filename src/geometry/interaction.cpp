@@ -70,6 +70,10 @@ ShadingContext SurfaceInteraction::shading_context(bool two_sided) const {
     }
     ctx.frame = Frame::from_normal_tangent(n, dpdu);
     ctx.ng = g;
+    if (length_squared(n_footprint) > 0.f) {
+        ctx.n_macro = n_footprint * ctx.side;
+        ctx.dpdu_macro = length_squared(dpdu_footprint) > 0.f ? dpdu_footprint : dpdu;
+    }
     ctx.dpdu = dpdu;
     ctx.dpdv = dpdv;
     ctx.dpdx = dpdx;

@@ -106,6 +106,36 @@ void check_image(const std::string &path, const Image &img) {
 
 }  // namespace
 
+/// OpenEXR stores channels sorted by name and OIIO returns them in the file's order (RGBA
+/// first): write_exr's R, G, B, A, channel4, ..., channel30 would come back as R, G, B, A,
+/// channel10, ..., channel19, channel20, ..., channel4, ..., channel9. Channels named that
+/// way (R, G, B, A, "channelN") are put back at index N; other namings are kept as read.
+static void restore_written_order(Image &img, const std::vector<std::string> &names) {
+    const int C = img.channels;
+    if (C <= 4 || int(names.size()) != C) return;
+    std::vector<int> dst(size_t(C), -1);
+    std::vector<char> used(size_t(C), 0);
+    for (int k = 0; k < C; ++k) {
+        const std::string &n = names[size_t(k)];
+        int i = -1;
+        if (n == "R") i = 0;
+        else if (n == "G") i = 1;
+        else if (n == "B") i = 2;
+        else if (n == "A") i = 3;
+        else if (n.size() > 7 && n.size() < 12 && n.compare(0, 7, "channel") == 0 &&
+                 std::all_of(n.begin() + 7, n.end(), [](char ch) { return ch >= '0' && ch <= '9'; }))
+            i = std::stoi(n.substr(7));
+        if (i < 0 || i >= C || used[size_t(i)]) return;
+        used[size_t(i)] = 1;
+        dst[size_t(k)] = i;
+    }
+    std::vector<float> out(img.data.size());
+    const size_t px = size_t(img.width) * img.height;
+    for (size_t p = 0; p < px; ++p)
+        for (int k = 0; k < C; ++k) out[p * C + size_t(dst[size_t(k)])] = img.data[p * C + size_t(k)];
+    img.data.swap(out);
+}
+
 Image read_image(const std::string &path, bool linearize_srgb) {
     std::error_code ec;
     if (!fs::exists(path, ec)) read_error(path, "file does not exist");
@@ -120,6 +150,7 @@ Image read_image(const std::string &path, bool linearize_srgb) {
     if (!in->read_image(0, 0, 0, spec.nchannels, TypeDesc::FLOAT, img.data.data()))
         read_error(path, trimmed(in->geterror(), "read failed"));
     if (in->has_error()) read_error(path, trimmed(in->geterror(), "read failed"));
+    restore_written_order(img, spec.channelnames);
 
     TypeDesc::BASETYPE base = TypeDesc::BASETYPE(spec.format.basetype);
     bool integer_encoded = base == TypeDesc::UINT8 || base == TypeDesc::UINT16;

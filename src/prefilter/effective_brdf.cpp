@@ -12,8 +12,10 @@
 #include "render/shading.h"
 #include "sampling/rng.h"
 #include "sampling/warp.h"
+#include "prefilter/micro_vertex.h"
 
 namespace meso::prefilter {
+using namespace detail;
 namespace {
 
 /// Per-chunk sums (double, per channel) of the per-sample contributions of accepted samples.
@@ -22,57 +24,12 @@ struct Sums {
     double sum[3] = {0, 0, 0}, sum2[3] = {0, 0, 0};
 };
 
-/// Whether [a, b) spans a whole number (>= 1) of periods of length `period`.
-bool whole_periods(double a, double b, int period) {
-    const double n = (b - a) / double(period);
-    const double r = std::round(n);
-    return r >= 1 && std::abs(n - r) <= 1e-9 * r;
-}
-
 Vec3 checked_direction(Vec3 w, const char *name) {
     const double l = std::sqrt(double(w.x) * w.x + double(w.y) * w.y + double(w.z) * w.z);
     if (!std::isfinite(l) || !(l > 0))
         throw MesoError(fmt::format("effective BRDF: direction {} = ({}, {}, {}) is zero or not finite", name, w.x,
                                     w.y, w.z));
     return Vec3(float(w.x / l), float(w.y / l), float(w.z / l));
-}
-
-/// A point on the microsurface: integer cell offsets plus a small local part (the
-/// intersector's convention), the micro-normal and its shading context.
-struct Vertex {
-    int64_t ox = 0, oy = 0;
-    Vec3 p;  ///< local position: x, y in [0, 1) (plus round-off), z = height
-    Vec3 n;  ///< unit micro-normal (upper side)
-    ShadingContext ctx;
-};
-
-Vertex make_vertex(const Heightfield &hf, const HeightfieldHit &hit, int64_t ox, int64_t oy) {
-    Vertex v;
-    // Re-base: the integer part of the traced position moves into the offsets, so the
-    // coordinates handed to the intersector stay small however far a path wanders.
-    const float fx = std::floor(hit.x), fy = std::floor(hit.y);
-    v.ox = ox + int64_t(fx);
-    v.oy = oy + int64_t(fy);
-    v.p = Vec3(hit.x - fx, hit.y - fy, hit.h);
-    v.n = normalize(Vec3(-hit.dhdx, -hit.dhdy, 1.f));
-    // s along the x tangent (1, 0, dh/dx) so that anisotropic bases line up with the map.
-    v.ctx.frame = Frame::from_normal_tangent(v.n, Vec3(1.f, 0.f, hit.dhdx));
-    v.ctx.ng = v.n;
-    const double W = hf.width(), H = hf.height();
-    const double ax = double(v.ox) + v.p.x, ay = double(v.oy) + v.p.y;
-    v.ctx.p = Vec3(float(ax), float(ay), v.p.z);
-    double u = ax / W - std::floor(ax / W), w = ay / H - std::floor(ay / H);
-    v.ctx.uv = Vec2(float(std::min(u, 0.99999999)), float(std::min(w, 0.99999999)));
-    v.ctx.dpdu = Vec3(float(W), 0.f, float(W) * hit.dhdx);
-    v.ctx.dpdv = Vec3(0.f, float(H), float(H) * hit.dhdy);
-    return v;
-}
-
-/// Origin of a ray leaving vertex v: pushed off the surface along the normal by a distance
-/// relative to the coordinates' magnitude (float round-off of the hit point).
-Vec3 spawn_origin(const Vertex &v) {
-    const float eps = 1e-4f * (1.f + std::abs(v.p.z));
-    return v.p + v.n * eps;
 }
 
 }  // namespace
@@ -111,20 +68,9 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
     if (!(wo.z > 0.f) || (wi_fixed && !(wi_fixed->z > 0.f))) return est;
 
     // The shooting region Q (see the header): whole periods need no rejection.
-    const bool wrap_x = whole_periods(R.x0, R.x1, m_hf.width()), wrap_y = whole_periods(R.y0, R.y1, m_hf.height());
-    const double zmin = m_hf.min_height(), zmax = m_hf.max_height();
-    const double z_top = zmax + 1e-2 * (1 + (zmax - zmin));
-    const double sx = double(wo.x) / wo.z, sy = double(wo.y) / wo.z;
-    const double dz_lo = z_top - zmax, dz_hi = z_top - zmin;
-    double qx0 = R.x0, qx1 = R.x1, qy0 = R.y0, qy1 = R.y1;
-    if (!wrap_x) {
-        qx0 += std::min(sx * dz_lo, sx * dz_hi);
-        qx1 += std::max(sx * dz_lo, sx * dz_hi);
-    }
-    if (!wrap_y) {
-        qy0 += std::min(sy * dz_lo, sy * dz_hi);
-        qy1 += std::max(sy * dz_lo, sy * dz_hi);
-    }
+    const ShootingRegion Q = shooting_region(m_hf, R, wo);
+    const bool wrap_x = Q.wrap_x, wrap_y = Q.wrap_y;
+    const double qx0 = Q.x0, qx1 = Q.x1, qy0 = Q.y0, qy1 = Q.y1, z_top = Q.z_top;
     const Vec3 d_view = -wo;
 
     // One line of sight plus its path; returns false when the first hit is not in P.
@@ -152,7 +98,7 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
             leak = true;
             return false;
         }
-        Vertex v = make_vertex(m_hf, hit, ox, oy);
+        Vertex v = make_vertex(m_hf, hit, ox, oy, m_opt.macro_frame);
         if (!wrap_x) {
             const double ax = double(ox) + double(hit.x);
             if (ax < R.x0 || ax >= R.x1) return false;
@@ -172,7 +118,7 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
             const Vec3 lwo = fr.to_local(w_out);
             if (!(lwo.z > 0.f)) break;  // round-off at a grazing hit: the path sees the back
             const Vec3 lwi = fr.to_local(wi);
-            if (lwi.z > 0.f) {
+            if (lwi.z > 0.f && dot(v.n, wi) > 0.f) {
                 const Spectrum f = m_base.eval(v.ctx, lwo, lwi);
                 if (!f.is_black() && !m_hf.occluded(spawn_origin(v), wi, 0.f, Infinity, v.ox, v.oy))
                     sum += throughput * f;
@@ -190,10 +136,10 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
                 throughput *= 1.f / q;
             }
             const Vec3 dir = normalize(fr.to_world(bs.wi));
-            if (!(dir.z > -1.f)) break;
+            if (!(dir.z > -1.f) || !(dot(v.n, dir) > 0.f)) break;
             HeightfieldHit next;
             if (!m_hf.intersect(spawn_origin(v), dir, 0.f, Infinity, next, v.ox, v.oy)) break;  // escaped
-            v = make_vertex(m_hf, next, v.ox, v.oy);
+            v = make_vertex(m_hf, next, v.ox, v.oy, m_opt.macro_frame);
             w_out = -dir;
         }
         contrib = sum * inv_pdf;

@@ -91,6 +91,12 @@ public:
         int roulette_start = 4;
         /// Samples per deterministic chunk (one RNG stream each).
         size_t chunk = 4096;
+        /// Evaluate and sample the base in the MACRO frame (x, y, z) instead of the micro-normal
+        /// frame: the convention of prefiltered models (prefilter/model.h), whose BRDF holds
+        /// the patch's normals itself. Directions below the micro-facet's tangent plane are
+        /// then blocked (light: unshadowed only above the facet; a sampled continuation into the
+        /// facet ends the path), as a renderer shading the facet does.
+        bool macro_frame = false;
     };
 
     struct Estimate {

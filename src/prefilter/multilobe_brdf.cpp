@@ -93,6 +93,26 @@ Spectrum MultiLobeBrdf::eval(const ShadingContext &ctx, const Vec3 &wo, const Ve
     return Spectrum(float(r), float(g), float(b));
 }
 
+void MultiLobeBrdf::eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const {
+    thread_local std::vector<double> acc;
+    acc.assign(size_t(n) * 3, 0.0);
+    if (wo.z > 0.f) {
+        for (const NdfNode &k : m_nodes) {
+            const Vec3 lo = k.frame.to_local(wo);
+            if (!(lo.z > 0.f)) continue;
+            for (int b = 0; b < n; ++b) {
+                if (!(wi[b].z > 0.f)) continue;
+                const Vec3 li = k.frame.to_local(wi[b]);
+                if (!(li.z > 0.f)) continue;
+                const Spectrum f = m_base->eval(ctx, lo, li);
+                double *a = &acc[size_t(b) * 3];
+                a[0] += k.weight * f.r, a[1] += k.weight * f.g, a[2] += k.weight * f.b;
+            }
+        }
+    }
+    for (int b = 0; b < n; ++b) out[b] = Spectrum(float(acc[size_t(b) * 3]), float(acc[size_t(b) * 3 + 1]), float(acc[size_t(b) * 3 + 2]));
+}
+
 float MultiLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
     if (!(wo.z > 0.f) || !(wi.z > 0.f)) return 0.f;
     double total = 0.0, sum = 0.0;

@@ -94,6 +94,10 @@ public:
     bool is_reciprocal() const override { return false; }
     std::string to_string() const override;
 
+    /// eval(ctx, wo, wi[b]) for b < n into out[b] (same values; wo's per-node transform and
+    /// test are done once): the next-event splat of prefilter/scaling.cpp.
+    void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
+
     const std::vector<NdfNode> &nodes() const { return m_nodes; }
     /// Σ_k c_k: the quadrature of ∫_{H²} D dω (≈ area_ratio for a good fit).
     double total_weight() const { return m_total; }

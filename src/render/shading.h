@@ -18,6 +18,11 @@ struct ShadingContext {
     /// +1 when frame.n is the shape's shading normal, -1 when the two-sided integrator flipped
     /// the frame towards wo (heights along the shape's normal then point into the surface).
     float side = 1.f;
+    /// The macro surface when the hit is on microgeometry (shell-mapped displacement): its
+    /// unit normal (world; flipped with `side`, like frame.n) and a tangent along u (world,
+    /// not normalised). Both zero elsewhere: then the shading frame is the macro frame.
+    /// Prefiltered LoD materials (paper 004) shade in the frame from_normal_tangent(n_macro, dpdu_macro).
+    Vec3 n_macro, dpdu_macro;
     // Ray-differential footprint on the surface (zero when unknown, e.g. in `meso material`).
     Vec3 dpdx, dpdy;
     float dudx = 0, dudy = 0, dvdx = 0, dvdy = 0;

@@ -9,6 +9,7 @@
 #include <memory>
 #include <string>
 #include <vector>
+#include <nlohmann/json_fwd.hpp>
 
 namespace meso {
 
@@ -44,6 +45,11 @@ Registry &registry();
 /// file, path and the known types. Calls check_unused() afterwards.
 std::shared_ptr<Material> create_material(const Properties &props);
 std::shared_ptr<Texture> create_texture(const Properties &props);
+/// A material from a command-line argument: an inline JSON object or the path of a JSON file
+/// (relative paths inside resolve against the file's directory, returned in *base_dir when
+/// given). `storage` keeps the parsed JSON. Errors name the file or "<inline material>".
+std::shared_ptr<Material> load_material_arg(const std::string &arg, nlohmann::json &storage,
+                                            std::string *base_dir = nullptr);
 std::shared_ptr<Light> create_light(const Properties &props);
 std::shared_ptr<Integrator> create_integrator(const Properties &props);
 std::shared_ptr<Sampler> create_sampler(const Properties &props);

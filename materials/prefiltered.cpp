@@ -1,0 +1,321 @@
+// `prefiltered`: the prefiltered base SVBRDF of one LoD level of paper 004 (Wu et al. 2019),
+// read from a model directory written by `meso prefilter` (prefilter/model.h):
+//
+//   f_low(x, ωi, ωo) = T(x) · S(ωi, ωo) · f'_low(x, ωi, ωo)          (eq. 13 / 18 with eq. 14)
+//
+// f'_low is the multi-lobe SVBRDF of eq. 5 / 11 (prefilter/multilobe_brdf.h: the base material
+// integrated over the patch NDF of eq. 4, deterministic quadrature), T the spatial and S the
+// angular scaling function of §6 (eq. 22-24; single-bounce tables or, "ir", the ones fitted with
+// interreflections, §5). As everywhere in meso, eval returns f · cos θi (here the cosine to the
+// macro normal, which f'_low already includes).
+//
+// Frames. The model lives in the MACRO tangent frame (z = the undisplaced surface's normal, x
+// along u): on microgeometry (a shell-mapped LoD level, h_low) the ShadingContext carries the
+// macro normal and u tangent (n_macro, dpdu_macro) and directions are rotated shading-local →
+// world → macro; elsewhere (a plain mesh, `meso material`) the shading frame is the macro
+// frame. The material is reflection-only in BOTH frames: eval, pdf and sample give 0 / false
+// unless wo and wi are above the shading horizon and the macro horizon. The rotation is
+// orthonormal, so solid-angle pdfs are unchanged.
+//
+// Map position. x = frac(uv · tiling) ∈ [0, 1)² is the position in the map's tile: T(x) is
+// bilinear between its M x M bin centres (periodic), and the patch NDF is patch
+// floor(x · (W/F, H/F)). f'_low and the base are evaluated with a context whose uv is x.
+//
+// Sampling follows f'_low alone (node choice, then the base in the node frame); the sampled
+// direction is rotated back to the shading frame and must be above both horizons. pdf is
+// f'_low's pdf (T·S is not importance-sampled) and weight = eval / pdf at the sampled
+// direction, computed from eval and pdf. Not reciprocal (f'_low is not).
+//
+// Base material. By default, the one the model was made with (manifest "input"."base", a
+// meso material object); relative file names inside it (textures) resolve against the
+// manifest's "input"."base_dir" (where `meso prefilter` read the --base file) when that
+// directory exists, else against the MODEL directory; absolute ones as they are. `base` overrides it (any isotropic, reflection-only
+// material without delta lobes; MultiLobeBrdf rejects the rest).
+//
+// Caching: a model directory is loaded once per canonical path and f'_low (one MultiLobeBrdf
+// per patch) is built once per (model, level, base) while any material holds it, so the
+// levels of a chain and the scaling ablations share one load.
+//
+// Parameters
+//   name     type              default   notes
+//   model    string            -         model directory (`meso prefilter` output), relative to the scene file
+//   level    int               -         the level's downsampling factor F; must exist in the model
+//   scaling  string            ir|single "ir" (default when the level has interreflection tables) | "single"
+//                                        (default otherwise) | "none" (f'_low alone) | "T" | "S" (that factor
+//                                        only, from the ir tables when the level has them, else single)
+//   tiling   float | [u, v]    1         repeats of the map over uv [0, 1] (as the displacement's tiling)
+//   base     material          manifest  overrides the model's base material
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <tuple>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include "core/error.h"
+#include "prefilter/model.h"
+#include "render/material.h"
+#include "scene/properties.h"
+#include "scene/registry.h"
+
+namespace meso {
+namespace {
+
+using prefilter::MultiLobeBrdf;
+using prefilter::PrefilteredLevel;
+using prefilter::PrefilteredModel;
+using prefilter::ScalingTables;
+using prefilter::SvMultiLobe;
+
+namespace fs = std::filesystem;
+
+// ------------------------------------------------------------------ shared loads
+
+struct ModelCache {
+    std::mutex mutex;
+    std::map<std::string, std::weak_ptr<const PrefilteredModel>> models;
+    /// (model dir, factor, base override or null for the model's own base) -> f'_low
+    std::map<std::tuple<std::string, int, const Material *>, std::weak_ptr<const SvMultiLobe>> svbrdfs;
+    std::map<std::string, std::weak_ptr<const Material>> bases;  ///< the model's own base, per dir
+};
+
+ModelCache &cache() {
+    static ModelCache c;
+    return c;
+}
+
+std::shared_ptr<const PrefilteredModel> load_model_cached(const std::string &dir) {
+    ModelCache &c = cache();
+    std::lock_guard<std::mutex> lock(c.mutex);
+    if (auto m = c.models[dir].lock()) return m;
+    auto m = std::make_shared<const PrefilteredModel>(PrefilteredModel::load(dir));
+    c.models[dir] = m;
+    return m;
+}
+
+/// The model's own base material (manifest "input"."base"), built once per model.
+std::shared_ptr<const Material> model_base(const std::shared_ptr<const PrefilteredModel> &model, const std::string &dir) {
+    ModelCache &c = cache();
+    std::lock_guard<std::mutex> lock(c.mutex);
+    if (auto b = c.bases[dir].lock()) return b;
+    if (!model->base.is_object())
+        throw MesoError(fmt::format("{}: input.base: expected a material object, got {}",
+                                    (fs::path(dir) / "manifest.json").string(), json_type_name(model->base)));
+    auto ctx = std::make_shared<LoadContext>();
+    ctx->file = (fs::path(dir) / "manifest.json").string();
+    // Relative file names in the base (textures) resolve against input.base_dir (written by
+    // `meso prefilter`: the directory of the --base file) when it exists, else the model directory.
+    ctx->base_dir = dir;
+    const auto &in = model->manifest.find("input");
+    if (in != model->manifest.end() && in->is_object()) {
+        const auto bd = in->find("base_dir");
+        std::error_code ec;
+        if (bd != in->end() && bd->is_string() && fs::is_directory(bd->get<std::string>(), ec))
+            ctx->base_dir = bd->get<std::string>();
+    }
+    std::shared_ptr<const Material> b = create_material(Properties(model->base, "input.base", ctx));
+    c.bases[dir] = b;
+    return b;
+}
+
+std::shared_ptr<const SvMultiLobe> svbrdf_cached(const std::shared_ptr<const PrefilteredModel> &model,
+                                                 const std::string &dir, const PrefilteredLevel &level,
+                                                 const std::shared_ptr<const Material> &base, bool own_base) {
+    ModelCache &c = cache();
+    std::lock_guard<std::mutex> lock(c.mutex);
+    const auto key = std::make_tuple(dir, level.factor, own_base ? nullptr : base.get());
+    if (auto f = c.svbrdfs[key].lock()) return f;
+    auto f = std::make_shared<const SvMultiLobe>(base, level.ndf, level.width(), level.height(), model->quadrature);
+    c.svbrdfs[key] = f;
+    return f;
+}
+
+// ------------------------------------------------------------------ the material
+
+enum class Scaling { None, Single, Ir, TOnly, SOnly };
+
+class Prefiltered final : public Material {
+public:
+    struct Config {
+        std::shared_ptr<const PrefilteredModel> model;
+        const PrefilteredLevel *level = nullptr;
+        std::shared_ptr<const SvMultiLobe> f;
+        const ScalingTables *tables = nullptr;  ///< null: no scaling
+        bool use_T = false, use_S = false;
+        float tu = 1.f, tv = 1.f;
+        std::string desc;
+    };
+
+    explicit Prefiltered(Config c) : m(std::move(c)) {}
+
+    uint32_t flags() const override { return m.f->flags(); }
+    bool is_reciprocal() const override { return false; }
+    std::string to_string() const override { return m.desc; }
+
+    Spectrum albedo_hint(const ShadingContext &ctx) const override {
+        const Local l = local(ctx);
+        Spectrum a = m.f->patch(l.c.uv).albedo_hint(l.c);
+        if (m.use_T) a *= m.tables->eval_T(l.c.uv);
+        return a;
+    }
+
+    Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
+        if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+        const Local l = local(ctx);
+        const Vec3 mo = l.to_macro(ctx, wo), mi = l.to_macro(ctx, wi);
+        if (!(mo.z > 0.f) || !(mi.z > 0.f)) return Spectrum(0.f);
+        return eval_macro(l, mo, mi);
+    }
+
+    float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
+        if (!(wo.z > 0.f) || !(wi.z > 0.f)) return 0.f;
+        const Local l = local(ctx);
+        const Vec3 mo = l.to_macro(ctx, wo), mi = l.to_macro(ctx, wi);
+        if (!(mo.z > 0.f) || !(mi.z > 0.f)) return 0.f;
+        return m.f->patch(l.c.uv).pdf(l.c, mo, mi);
+    }
+
+    bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override {
+        if (!(wo.z > 0.f)) return false;
+        const Local l = local(ctx);
+        const Vec3 mo = l.to_macro(ctx, wo);
+        if (!(mo.z > 0.f)) return false;
+        const MultiLobeBrdf &f = m.f->patch(l.c.uv);
+        BSDFSample bs;
+        if (!f.sample(l.c, mo, u_lobe, u, bs)) return false;
+        // Back to the shading frame; the pdf and eval are then taken at the direction the
+        // integrator will see (after the rotation's round-off), so that sample, pdf and eval
+        // agree exactly.
+        const Vec3 wi = l.rotated ? normalize(ctx.frame.to_local(l.macro.to_world(bs.wi))) : bs.wi;
+        if (!(wi.z > 0.f)) return false;
+        const Vec3 mi = l.to_macro(ctx, wi);
+        if (!(mi.z > 0.f)) return false;
+        const float p = l.rotated ? f.pdf(l.c, mo, mi) : bs.pdf;
+        if (!(p > 0.f) || !std::isfinite(p)) return false;
+        const Spectrum e = eval_macro(l, mo, mi);
+        out.wi = wi;
+        out.pdf = p;
+        out.weight = Spectrum(e.r / p, e.g / p, e.b / p);
+        out.eta = 1.f;
+        out.flags = bs.flags;
+        return true;
+    }
+
+private:
+    /// The context f'_low sees (uv = map position x) and the macro frame.
+    struct Local {
+        ShadingContext c;
+        Frame macro;
+        bool rotated = false;
+        Vec3 to_macro(const ShadingContext &ctx, const Vec3 &v) const {
+            return rotated ? normalize(macro.to_local(ctx.frame.to_world(v))) : v;
+        }
+    };
+
+    Local local(const ShadingContext &ctx) const {
+        Local l;
+        l.c = ctx;
+        auto wrap = [](double v) {
+            const double f = v - std::floor(v);
+            return float(f < 1.0 ? f : 0.0);  // floor rounding can give exactly 1
+        };
+        l.c.uv = Vec2(wrap(double(ctx.uv.x) * m.tu), wrap(double(ctx.uv.y) * m.tv));
+        if (length_squared(ctx.n_macro) > 0.f) {
+            l.rotated = true;
+            l.macro = Frame::from_normal_tangent(normalize(ctx.n_macro), ctx.dpdu_macro);
+            l.c.frame = l.macro;
+        }
+        return l;
+    }
+
+    Spectrum eval_macro(const Local &l, const Vec3 &mo, const Vec3 &mi) const {
+        Spectrum v = m.f->patch(l.c.uv).eval(l.c, mo, mi);
+        if (v.is_black()) return v;
+        if (m.use_T) v *= m.tables->eval_T(l.c.uv);
+        if (m.use_S) v *= m.tables->eval_S(mi, mo);
+        return v;
+    }
+
+    Config m;
+};
+
+/// `model` resolved against the scene file's directory; it must be a directory.
+std::string model_dir(const Properties &p) {
+    const std::string name = p.get_string("model");
+    fs::path dir(name);
+    if (dir.is_relative() && !p.context().base_dir.empty()) dir = fs::path(p.context().base_dir) / dir;
+    std::error_code ec;
+    if (!fs::is_directory(dir, ec))
+        p.fail("model", fmt::format("model directory not found: '{}' (make one with `meso prefilter`)", dir.string()));
+    const fs::path canon = fs::weakly_canonical(dir, ec);
+    return ec ? dir.string() : canon.string();
+}
+
+std::shared_ptr<Material> make_prefiltered(const Properties &p) {
+    Prefiltered::Config c;
+    const std::string dir = model_dir(p);
+    try {
+        c.model = load_model_cached(dir);
+    } catch (const MesoError &e) {
+        p.fail("model", e.what());
+    }
+    const int factor = p.get_int("level");
+    c.level = c.model->level_for_factor(factor);
+    if (!c.level) {
+        std::string have;
+        for (const PrefilteredLevel &L : c.model->levels) have += (have.empty() ? "" : ", ") + std::to_string(L.factor);
+        p.fail("level", fmt::format("the model '{}' has no level with factor {} (it has {})", dir, factor, have));
+    }
+    const bool has_ir = !c.level->ir.empty();
+    const std::string scaling = p.get_string("scaling", has_ir ? "ir" : "single");
+    Scaling s;
+    if (scaling == "ir") s = Scaling::Ir;
+    else if (scaling == "single") s = Scaling::Single;
+    else if (scaling == "none") s = Scaling::None;
+    else if (scaling == "T") s = Scaling::TOnly;
+    else if (scaling == "S") s = Scaling::SOnly;
+    else p.fail("scaling", fmt::format("expected \"ir\", \"single\", \"none\", \"T\" or \"S\", got \"{}\"", scaling));
+    if (s == Scaling::Ir && !has_ir)
+        p.fail("scaling", fmt::format("level x{} of '{}' has no interreflection tables (made without them); "
+                                      "use \"single\"", factor, dir));
+    const ScalingTables &tab = (s == Scaling::Single || (!has_ir && s != Scaling::Ir)) ? c.level->single : c.level->ir;
+    if (s != Scaling::None) {
+        c.tables = &tab;
+        c.use_T = s != Scaling::SOnly;
+        c.use_S = s != Scaling::TOnly;
+    }
+    if (p.has("tiling")) {
+        std::vector<float> t;
+        if (p.raw("tiling").is_number()) t.assign(2, p.get_float("tiling"));
+        else t = p.get_floats("tiling");
+        if (t.size() != 2 || !(t[0] > 0.f && t[0] <= 1e6f) || !(t[1] > 0.f && t[1] <= 1e6f))
+            p.fail("tiling", "expected a number or [repeats_u, repeats_v] in (0, 1e6]");
+        c.tu = t[0], c.tv = t[1];
+    }
+    std::shared_ptr<const Material> base;
+    const bool own_base = !p.has("base");
+    if (own_base) {
+        try {
+            base = model_base(c.model, dir);
+        } catch (const MesoError &e) {
+            p.fail("model", fmt::format("the model's base material: {}", e.what()));
+        }
+    } else {
+        base = p.get_material("base");
+    }
+    try {
+        c.f = svbrdf_cached(c.model, dir, *c.level, base, own_base);
+    } catch (const MesoError &e) {
+        p.fail(own_base ? "model" : "base", e.what());
+    }
+    c.desc = fmt::format("prefiltered[{} level x{} ({}x{} patches), scaling {}, tiling {}x{}, base {}]", dir, factor,
+                         c.level->width(), c.level->height(), scaling, c.tu, c.tv, base->to_string());
+    return std::make_shared<Prefiltered>(std::move(c));
+}
+
+MESO_REGISTER_MATERIAL("prefiltered", "prefiltered displacement LoD level: T(x) S(wi,wo) f'_low (paper 004)",
+                       [](const Properties &p) -> std::shared_ptr<Material> { return make_prefiltered(p); });
+
+}  // namespace
+}  // namespace meso

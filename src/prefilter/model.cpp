@@ -1,0 +1,330 @@
+// Prefiltered LoD model: tables, lookups, directory I/O (see model.h for the layout).
+#include "prefilter/model.h"
+#include <OpenImageIO/imageio.h>
+#include <tbb/parallel_for.h>
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fmt/format.h>
+#include <fstream>
+#include "core/error.h"
+#include "core/math.h"
+#include "sampling/warp.h"
+
+namespace fs = std::filesystem;
+
+namespace meso::prefilter {
+
+Vec2 concentric_disk_to_square(Vec2 d) {
+    const double x = d.x, y = d.y;
+    const double r = std::sqrt(x * x + y * y);
+    if (!(r > 0)) return Vec2(0.5f, 0.5f);
+    // Inverse of the forward map: |ox| > |oy| sector: r = ox, θ = π/4 oy/ox; else r = oy,
+    // θ = π/2 - π/4 ox/oy (with the sign of r carrying the half plane).
+    double phi = std::atan2(y, x);  // (-π, π]
+    if (phi < -Pi / 4) phi += 2 * Pi;  // [-π/4, 7π/4)
+    double ox, oy;
+    if (phi < Pi / 4) {  // right sector: ox = r
+        ox = r;
+        oy = r * phi / (Pi / 4);
+    } else if (phi < 3 * Pi / 4) {  // top: oy = r, θ = π/2 - π/4 ox/oy
+        oy = r;
+        ox = r * (Pi / 2 - phi) / (Pi / 4);
+    } else if (phi < 5 * Pi / 4) {  // left: ox = -r, θ = π + π/4 oy/ox... forward gives θ = π/4 oy/ox with r < 0
+        ox = -r;
+        oy = -r * (phi - Pi) / (Pi / 4);
+    } else {  // bottom: oy = -r
+        oy = -r;
+        ox = -r * (3 * Pi / 2 - phi) / (Pi / 4);
+    }
+    auto c = [](double v) { return float(std::clamp(0.5 * (v + 1.0), 0.0, 1.0)); };
+    return Vec2(c(ox), c(oy));
+}
+
+Vec2 hemisphere_to_square(Vec3 w) {
+    const double l = std::sqrt(double(w.x) * w.x + double(w.y) * w.y + double(w.z) * w.z);
+    if (!(l > 0) || !std::isfinite(l)) return Vec2(0.5f, 0.5f);
+    double x = w.x / l, y = w.y / l;
+    const double r = std::sqrt(x * x + y * y);
+    if (r > 1) x /= r, y /= r;
+    return concentric_disk_to_square(Vec2(float(x), float(y)));
+}
+
+Vec3 square_to_hemisphere(Vec2 u) { return square_to_cosine_hemisphere(u); }
+
+namespace {
+/// Bin-centre interpolation along one axis of N bins: lower index and weight of the upper.
+inline void axis_lerp(float s, int N, int &i0, int &i1, float &t) {
+    const float x = std::clamp(s * float(N) - 0.5f, 0.f, float(N - 1));
+    i0 = std::min(int(x), N - 1);
+    i1 = std::min(i0 + 1, N - 1);
+    t = x - float(i0);
+}
+}  // namespace
+
+Spectrum ScalingTables::S_bin(int bi, int bo) const {
+    const int ix = bi % N, iy = bi / N, ox = bo % N, oy = bo / N;
+    return S.rgb(ox * N + ix, oy * N + iy);
+}
+
+void ScalingTables::set_S_bin(int bi, int bo, Spectrum s) {
+    const int ix = bi % N, iy = bi / N, ox = bo % N, oy = bo / N;
+    S.set_rgb(ox * N + ix, oy * N + iy, s);
+}
+
+Spectrum ScalingTables::eval_T(Vec2 x) const {
+    if (M <= 0) return Spectrum(1.f);
+    auto wrapi = [&](int i) { return ((i % M) + M) % M; };
+    double u = double(x.x) - std::floor(double(x.x)), v = double(x.y) - std::floor(double(x.y));
+    const double fx = u * M - 0.5, fy = v * M - 0.5;
+    const int x0 = int(std::floor(fx)), y0 = int(std::floor(fy));
+    const float tx = float(fx - x0), ty = float(fy - y0);
+    const Spectrum a = T.rgb(wrapi(x0), wrapi(y0)), b = T.rgb(wrapi(x0 + 1), wrapi(y0));
+    const Spectrum c = T.rgb(wrapi(x0), wrapi(y0 + 1)), d = T.rgb(wrapi(x0 + 1), wrapi(y0 + 1));
+    return (a * (1.f - tx) + b * tx) * (1.f - ty) + (c * (1.f - tx) + d * tx) * ty;
+}
+
+Spectrum ScalingTables::eval_S(Vec3 wi, Vec3 wo) const {
+    if (N <= 0) return Spectrum(1.f);
+    const Vec2 si = hemisphere_to_square(wi), so = hemisphere_to_square(wo);
+    int ix[2], iy[2], ox[2], oy[2];
+    float tix, tiy, tox, toy;
+    axis_lerp(si.x, N, ix[0], ix[1], tix);
+    axis_lerp(si.y, N, iy[0], iy[1], tiy);
+    axis_lerp(so.x, N, ox[0], ox[1], tox);
+    axis_lerp(so.y, N, oy[0], oy[1], toy);
+    const float wix[2] = {1.f - tix, tix}, wiy[2] = {1.f - tiy, tiy}, wox[2] = {1.f - tox, tox},
+                woy[2] = {1.f - toy, toy};
+    Spectrum s(0.f);
+    for (int a = 0; a < 2; ++a)
+        for (int b = 0; b < 2; ++b) {
+            const float wo_w = wox[a] * woy[b];
+            if (wo_w == 0.f) continue;
+            for (int c = 0; c < 2; ++c)
+                for (int d = 0; d < 2; ++d) {
+                    const float w = wo_w * wix[c] * wiy[d];
+                    if (w == 0.f) continue;
+                    s += S.rgb(ox[a] * N + ix[c], oy[b] * N + iy[d]) * w;
+                }
+        }
+    return s;
+}
+
+Image lobes_to_image(const std::vector<PatchNdf> &ndf, int width, int height, int lobes) {
+    if (ndf.size() != size_t(width) * size_t(height))
+        throw MesoError(fmt::format("lobes image: {} patches for a {}x{} grid", ndf.size(), width, height));
+    Image img(width, height, 5 * lobes + 1);
+    for (int j = 0; j < height; ++j)
+        for (int i = 0; i < width; ++i) {
+            const PatchNdf &p = ndf[size_t(j) * width + i];
+            for (int k = 0; k < lobes; ++k) {
+                float *c = &img.at(i, j, 5 * k);
+                if (size_t(k) < p.lobes.size()) {
+                    const VmfLobe &l = p.lobes[size_t(k)];
+                    c[0] = l.mu.x, c[1] = l.mu.y, c[2] = l.mu.z, c[3] = l.kappa, c[4] = l.weight;
+                } else {
+                    c[0] = 0, c[1] = 0, c[2] = 1, c[3] = 0, c[4] = 0;  // an empty lobe
+                }
+            }
+            img.at(i, j, 5 * lobes) = float(p.amplitude);
+        }
+    return img;
+}
+
+std::vector<PatchNdf> lobes_from_image(const Image &img, int lobes, const std::string &where) {
+    if (lobes < 1 || img.channels != 5 * lobes + 1)
+        throw MesoError(fmt::format("{}: expected {} channels (5 per lobe for {} lobes + amplitude), got {}", where,
+                                    5 * lobes + 1, lobes, img.channels));
+    std::vector<PatchNdf> out(size_t(img.width) * img.height);
+    for (int j = 0; j < img.height; ++j)
+        for (int i = 0; i < img.width; ++i) {
+            PatchNdf &p = out[size_t(j) * img.width + i];
+            for (int k = 0; k < lobes; ++k) {
+                const float *c = &img.data[(size_t(j) * img.width + i) * img.channels + 5 * k];
+                for (int q = 0; q < 5; ++q)
+                    if (!std::isfinite(c[q]))
+                        throw MesoError(fmt::format("{}: pixel ({}, {}) lobe {}: non-finite value", where, i, j, k));
+                if (!(c[4] > 0.f)) continue;  // empty lobe
+                VmfLobe l;
+                l.mu = Vec3(c[0], c[1], c[2]);
+                l.kappa = c[3];
+                l.weight = c[4];
+                if (!(length(l.mu) > 0.f) || l.kappa < 0.f)
+                    throw MesoError(fmt::format("{}: pixel ({}, {}) lobe {}: zero direction or negative kappa", where,
+                                                i, j, k));
+                l.mu = normalize(l.mu);
+                p.lobes.push_back(l);
+            }
+            p.amplitude = img.at(i, j, 5 * lobes);
+            if (p.lobes.empty() || !(p.amplitude > 0.0) || !std::isfinite(p.amplitude))
+                throw MesoError(fmt::format("{}: pixel ({}, {}): no lobe or amplitude {} (expected > 0)", where, i, j,
+                                            p.amplitude));
+        }
+    return out;
+}
+
+namespace {
+
+const nlohmann::json &need(const nlohmann::json &j, const char *key, const std::string &where) {
+    auto it = j.find(key);
+    if (it == j.end()) throw MesoError(fmt::format("{}: missing key '{}'", where, key));
+    return *it;
+}
+
+Image read_checked(const fs::path &p, int w, int h, int c, const std::string &what) {
+    if (!fs::exists(p)) throw MesoError(fmt::format("{}: {} is missing", p.string(), what));
+    Image img = read_image(p.string());
+    if (img.width != w || img.height != h || img.channels < c)
+        throw MesoError(fmt::format("{}: {} must be {}x{} with {} channels, got {}x{} with {}", p.string(), what, w,
+                                    h, c, img.width, img.height, img.channels));
+    if (img.channels != c) {  // keep the first c channels
+        Image o(w, h, c);
+        for (int y = 0; y < h; ++y)
+            for (int x = 0; x < w; ++x)
+                for (int k = 0; k < c; ++k) o.at(x, y, k) = img.at(x, y, k);
+        img = std::move(o);
+    }
+    for (float v : img.data)
+        if (!std::isfinite(v) || v < 0.f) throw MesoError(fmt::format("{}: {} holds a negative or non-finite value", p.string(), what));
+    return img;
+}
+
+}  // namespace
+
+PrefilteredModel PrefilteredModel::load(const std::string &dir) {
+    PrefilteredModel m;
+    m.dir = dir;
+    const fs::path mf = fs::path(dir) / "manifest.json";
+    std::ifstream in(mf);
+    if (!in) throw MesoError(fmt::format("{}: cannot open the model's manifest (is '{}' a `meso prefilter` output?)", mf.string(), dir));
+    try {
+        in >> m.manifest;
+    } catch (const std::exception &e) {
+        throw MesoError(fmt::format("{}: invalid JSON: {}", mf.string(), e.what()));
+    }
+    const std::string where = mf.string();
+    const auto &j = m.manifest;
+    if (need(j, "format", where) != "meso-prefiltered-model")
+        throw MesoError(fmt::format("{}: 'format' must be \"meso-prefiltered-model\"", where));
+    const auto &in_j = need(j, "input", where);
+    m.map_width = need(in_j, "map_width", where + " input").get<int>();
+    m.map_height = need(in_j, "map_height", where + " input").get<int>();
+    m.height_scale = need(in_j, "height_scale", where + " input").get<double>();
+    m.tile_size = need(in_j, "tile_size", where + " input").get<double>();
+    m.base = need(in_j, "base", where + " input");
+    const auto &par = need(j, "parameters", where);
+    m.lobes = need(par, "lobes", where + " parameters").get<int>();
+    m.quadrature.polar = par.value("quadrature_polar", 4);
+    m.quadrature.azimuth = par.value("quadrature_azimuth", 6);
+    if (m.map_width < 1 || m.map_height < 1 || !(m.tile_size > 0) || m.lobes < 1 || m.lobes > 64)
+        throw MesoError(fmt::format("{}: invalid map size, tile_size or lobes", where));
+    for (const auto &lj : need(j, "levels", where)) {
+        PrefilteredLevel L;
+        L.factor = need(lj, "factor", where + " levels[]").get<int>();
+        const std::string lw = fmt::format("{} level x{}", where, L.factor);
+        if (L.factor < 1 || m.map_width % L.factor || m.map_height % L.factor)
+            throw MesoError(fmt::format("{}: factor must divide the map size {}x{}", lw, m.map_width, m.map_height));
+        const int w = m.map_width / L.factor, h = m.map_height / L.factor;
+        const fs::path ldir = fs::path(dir) / need(lj, "dir", lw).get<std::string>();
+        L.h_low = read_height_map((ldir / "h_low.exr").string());
+        if (L.h_low.width != w || L.h_low.height != h)
+            throw MesoError(fmt::format("{}: h_low.exr must be {}x{}", (ldir / "h_low.exr").string(), w, h));
+        Image lobes = read_image((ldir / "lobes.exr").string());
+        if (lobes.width != w || lobes.height != h)
+            throw MesoError(fmt::format("{}: lobes.exr must be {}x{}", (ldir / "lobes.exr").string(), w, h));
+        L.ndf = lobes_from_image(lobes, m.lobes, (ldir / "lobes.exr").string());
+        const int M = need(par, "M", where).get<int>(), N = need(par, "N", where).get<int>();
+        auto load_tables = [&](const char *t, const char *s, ScalingTables &tab) {
+            tab.M = M, tab.N = N;
+            tab.T = read_checked(ldir / t, M, M, 3, "T");
+            tab.S = read_checked(ldir / s, N * N, N * N, 3, "S");
+        };
+        load_tables("T.exr", "S.exr", L.single);
+        if (lj.value("interreflections", false)) load_tables("T_ir.exr", "S_ir.exr", L.ir);
+        L.stats = lj;
+        m.levels.push_back(std::move(L));
+    }
+    if (m.levels.empty()) throw MesoError(fmt::format("{}: 'levels' is empty", where));
+    return m;
+}
+
+void PrefilteredModel::save(const std::string &out) const {
+    fs::create_directories(out);
+    nlohmann::json j = manifest;
+    j["format"] = "meso-prefiltered-model";
+    nlohmann::json levels_j = nlohmann::json::array();
+    for (const PrefilteredLevel &L : levels) {
+        const std::string sub = fmt::format("level_{}", L.factor);
+        const fs::path ldir = fs::path(out) / sub;
+        fs::create_directories(ldir);
+        write_height_map((ldir / "h_low.exr").string(), L.h_low);
+        write_exr((ldir / "lobes.exr").string(), lobes_to_image(L.ndf, L.width(), L.height(), lobes));
+        write_exr((ldir / "T.exr").string(), L.single.T);
+        write_exr((ldir / "S.exr").string(), L.single.S);
+        if (!L.ir.empty()) {
+            write_exr((ldir / "T_ir.exr").string(), L.ir.T);
+            write_exr((ldir / "S_ir.exr").string(), L.ir.S);
+        }
+        nlohmann::json lj = L.stats.is_object() ? L.stats : nlohmann::json::object();
+        lj["factor"] = L.factor;
+        lj["dir"] = sub;
+        lj["size"] = {L.width(), L.height()};
+        lj["interreflections"] = !L.ir.empty();
+        levels_j.push_back(lj);
+    }
+    j["levels"] = levels_j;
+    const fs::path mf = fs::path(out) / "manifest.json", tmp = fs::path(out) / "manifest.json.tmp";
+    {
+        std::ofstream o(tmp);
+        if (!o) throw MesoError(fmt::format("{}: cannot write", tmp.string()));
+        o << j.dump(2) << "\n";
+    }
+    fs::rename(tmp, mf);  // the manifest last: a directory without it is not a model
+}
+
+const PrefilteredLevel *PrefilteredModel::level_for_factor(int factor) const {
+    for (const auto &L : levels)
+        if (L.factor == factor) return &L;
+    return nullptr;
+}
+
+// ---------------------------------------------------------------------------------------
+
+SvMultiLobe::SvMultiLobe(std::shared_ptr<const Material> base, const std::vector<PatchNdf> &ndf, int width,
+                         int height, const QuadratureOptions &q)
+    : m_base(std::move(base)), m_w(width), m_h(height) {
+    if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
+        throw MesoError(fmt::format("multi-lobe SVBRDF: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
+    m_patches.resize(ndf.size());
+    tbb::parallel_for(size_t(0), ndf.size(), [&](size_t k) {
+        m_patches[k] = std::make_unique<MultiLobeBrdf>(m_base, ndf[k], q);
+    });
+}
+
+const MultiLobeBrdf &SvMultiLobe::patch(Vec2 uv) const {
+    const double u = double(uv.x) - std::floor(double(uv.x)), v = double(uv.y) - std::floor(double(uv.y));
+    const int i = std::clamp(int(u * m_w), 0, m_w - 1), j = std::clamp(int(v * m_h), 0, m_h - 1);
+    return *m_patches[size_t(j) * m_w + i];
+}
+
+Spectrum SvMultiLobe::eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
+    return patch(ctx.uv).eval(ctx, wo, wi);
+}
+float SvMultiLobe::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
+    return patch(ctx.uv).pdf(ctx, wo, wi);
+}
+bool SvMultiLobe::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
+    return patch(ctx.uv).sample(ctx, wo, u_lobe, u, out);
+}
+uint32_t SvMultiLobe::flags() const { return m_patches.front()->flags(); }
+Spectrum SvMultiLobe::albedo_hint(const ShadingContext &ctx) const { return patch(ctx.uv).albedo_hint(ctx); }
+std::string SvMultiLobe::to_string() const {
+    return fmt::format("SvMultiLobe[{}x{} patches, base {}]", m_w, m_h, m_base->to_string());
+}
+size_t SvMultiLobe::memory_bytes() const {
+    size_t b = 0;
+    for (const auto &p : m_patches) b += sizeof(MultiLobeBrdf) + p->nodes().size() * sizeof(NdfNode);
+    return b;
+}
+
+}  // namespace meso::prefilter

@@ -1,0 +1,130 @@
+// The prefiltered LoD model of paper 004 (Wu et al. 2019) as `meso prefilter` writes it and
+// the `prefiltered` material reads it: per level (downsampling factor F), the least-squares
+// heightfield h_low (§4.1), the 6-lobe vMF SVNDF (§4.2, eq. 4) and the factorised scaling
+// function R ≈ T(x) S(ωi, ωo) (§6, eq. 22-24), with and without interreflections.
+//
+// On disk: a directory
+//   manifest.json                 every parameter, timings, standard errors, meso version
+//   level_F/h_low.exr             (W/F) x (H/F) heights, single channel, in the ORIGINAL map's
+//                                 units (a displacement's `scale`/`offset` apply unchanged);
+//                                 coarse vertex (I, J) sits at fine vertex (I F, J F)
+//   level_F/lobes.exr             (W/F) x (H/F), channel 5 j + {0,1,2,3,4} = lobe j's
+//                                 μ.x, μ.y, μ.z, κ, weight a_j (j < lobes), last channel =
+//                                 the amplitude (eq. 4: D = amplitude Σ a_j γ_j); patch (I, J)
+//                                 covers fine cells [I F, I F + F) x [J F, J F + F)
+//   level_F/T.exr, T_ir.exr       M x M RGB, mean 1 per channel (eq. 22-23)
+//   level_F/S.exr, S_ir.exr       N² x N² RGB (eq. 24), viewable block layout: pixel
+//                                 (X, Y) = (o_x N + i_x, o_y N + i_y), i.e. an N x N grid of
+//                                 blocks indexed by the ωo bin, each showing the ωi slice
+//   (the _ir tables exist when the model was made with interreflections)
+//
+// Frames. Directions are in the MACRO tangent frame (z = the undisplaced surface's normal,
+// x along u, y along v): the patch NDF holds the tilt of the patch, so f'_low, S and the
+// estimators all shade in the macro frame; h_low contributes position, occlusion and parallax.
+//
+// Angular bins: the concentric map (Shirley and Chiu 1997) of the unit square onto the disk,
+// lifted to the hemisphere (z = sqrt(1 - x² - y²)): equal-area in PROJECTED solid angle, so
+// every bin has the same cosine-weighted measure π / N². Bin (bx, by) covers
+// [bx/N, (bx+1)/N) x [by/N, (by+1)/N) of the square, index b = by N + bx; the lookup is
+// bilinear in (ωi's square coordinates) x bilinear in (ωo's), between bin centres, clamped
+// at the square's border (quadrilinear overall).
+#pragma once
+#include <memory>
+#include <string>
+#include <vector>
+#include <nlohmann/json.hpp>
+#include "core/spectrum.h"
+#include "core/vec.h"
+#include "geometry/heightmap.h"
+#include "image/image.h"
+#include "prefilter/multilobe_brdf.h"
+#include "prefilter/patch_ndf.h"
+#include "render/material.h"
+
+namespace meso::prefilter {
+
+/// Inverse of square_to_uniform_disk_concentric (sampling/warp.h): a point of the closed unit
+/// disk to [0,1]², continuous, exact inverse up to rounding.
+Vec2 concentric_disk_to_square(Vec2 d);
+/// A hemisphere direction (z >= 0, normalised here; z < 0 is mirrored up) to its square coordinates.
+Vec2 hemisphere_to_square(Vec3 w);
+/// Square coordinates to the hemisphere (square_to_cosine_hemisphere).
+Vec3 square_to_hemisphere(Vec2 u);
+
+/// T (M x M) and S (N² x N²) of one level, RGB.
+struct ScalingTables {
+    int M = 0, N = 0;
+    Image T;  ///< M x M, 3 channels
+    Image S;  ///< N² x N², 3 channels, block layout (see the header)
+
+    bool empty() const { return M == 0; }
+    /// S at bin indices (ωi bin, ωo bin), each b = by N + bx.
+    Spectrum S_bin(int bi, int bo) const;
+    void set_S_bin(int bi, int bo, Spectrum s);
+    /// T at map position x ∈ [0,1)² (wrapped): bilinear between patch centres, periodic.
+    Spectrum eval_T(Vec2 x) const;
+    /// S(ωi, ωo), macro frame: quadrilinear between bin centres, clamped at the border.
+    Spectrum eval_S(Vec3 wi, Vec3 wo) const;
+};
+
+struct PrefilteredLevel {
+    int factor = 1;
+    HeightMap h_low;               ///< (W/F) x (H/F), original map units
+    std::vector<PatchNdf> ndf;     ///< (W/F) (H/F) patches, index J (W/F) + I
+    ScalingTables single, ir;      ///< ir is empty unless made with interreflections
+    nlohmann::json stats;          ///< timings, errors (from the manifest)
+    int width() const { return h_low.width; }
+    int height() const { return h_low.height; }
+};
+
+struct PrefilteredModel {
+    std::string dir;
+    nlohmann::json manifest;
+    int map_width = 0, map_height = 0;
+    /// Cell-space scale of the original map: cell-space height = map value * height_cells
+    /// (= height_scale / tile_size * W); fixed by the inputs of `meso prefilter`.
+    double height_scale = 1.0;  ///< world units per map unit
+    double tile_size = 1.0;     ///< world size of one tile of the map (square cells)
+    nlohmann::json base;        ///< the base material (a meso material object)
+    int lobes = 6;
+    QuadratureOptions quadrature;  ///< how f'_low integrates the NDF (part of the model)
+    std::vector<PrefilteredLevel> levels;
+
+    /// Reads a model directory; throws MesoError naming the file and key on bad input.
+    static PrefilteredModel load(const std::string &dir);
+    /// Writes the directory (creating it); manifest levels/stats are taken from `manifest`
+    /// plus what this object holds.
+    void save(const std::string &dir) const;
+    /// The level with this factor, or null.
+    const PrefilteredLevel *level_for_factor(int factor) const;
+};
+
+/// Lobes image of a level (see the header) and back.
+Image lobes_to_image(const std::vector<PatchNdf> &ndf, int width, int height, int lobes);
+std::vector<PatchNdf> lobes_from_image(const Image &img, int lobes, const std::string &where);
+
+/// The spatially varying multi-lobe BRDF f'_low of one level (eq. 11), a Material evaluated
+/// in the MACRO frame (local z = the macro normal): patch (I, J) = floor(frac(uv) (W/F, H/F)).
+/// One MultiLobeBrdf per patch, built once (≈ nodes · 56 bytes per patch).
+class SvMultiLobe final : public Material {
+public:
+    SvMultiLobe(std::shared_ptr<const Material> base, const std::vector<PatchNdf> &ndf, int width, int height,
+                const QuadratureOptions &q);
+    const MultiLobeBrdf &patch(Vec2 uv) const;
+    const Material &base() const { return *m_base; }
+    Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
+    float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
+    bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override;
+    uint32_t flags() const override;
+    Spectrum albedo_hint(const ShadingContext &ctx) const override;
+    bool is_reciprocal() const override { return false; }
+    std::string to_string() const override;
+    size_t memory_bytes() const;
+
+private:
+    std::shared_ptr<const Material> m_base;
+    std::vector<std::unique_ptr<MultiLobeBrdf>> m_patches;
+    int m_w = 0, m_h = 0;
+};
+
+}  // namespace meso::prefilter

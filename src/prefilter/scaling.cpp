@@ -1,0 +1,493 @@
+// Direct estimation of T and S (paper 004 §6) with splatted next-event terms: see scaling.h.
+#include "prefilter/scaling.h"
+#include <tbb/parallel_for.h>
+#include <Eigen/Dense>
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <fmt/format.h>
+#include <mutex>
+#include "core/error.h"
+#include "prefilter/micro_vertex.h"
+#include "sampling/rng.h"
+#include "sampling/warp.h"
+
+namespace meso::prefilter {
+using namespace detail;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+int perfect_square_root(int k) {
+    const int g = int(std::lround(std::sqrt(double(k))));
+    return g * g == k ? g : 0;
+}
+
+/// Per-line contribution buffers of one task.
+struct LineBuf {
+    std::vector<double> a, b;  // N² x 3
+    explicit LineBuf(int bins) : a(size_t(bins) * 3), b(size_t(bins) * 3) {}
+    void clear() {
+        std::fill(a.begin(), a.end(), 0.0);
+        std::fill(b.begin(), b.end(), 0.0);
+    }
+};
+
+double median_of(std::vector<double> v) {
+    if (v.empty()) return 0.0;
+    const size_t m = v.size() / 2;
+    std::nth_element(v.begin(), v.begin() + m, v.end());
+    return v[m];
+}
+double quantile_of(std::vector<double> v, double q) {
+    if (v.empty()) return 0.0;
+    const size_t m = std::min(v.size() - 1, size_t(q * double(v.size())));
+    std::nth_element(v.begin(), v.begin() + m, v.end());
+    return v[m];
+}
+
+}  // namespace
+
+ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base, const Heightfield &low,
+                                   const SvMultiLobe &low_material, const ScalingOptions &opt)
+    : m_orig(orig), m_low(low), m_base(base), m_low_mat(low_material), m_opt(opt) {
+    const int M = opt.M, N = opt.N;
+    if (M < 1 || orig.width() % M || orig.height() % M || low.width() % M || low.height() % M)
+        throw MesoError(fmt::format("scaling function: M = {} must be >= 1 and divide the original ({}x{}) and the "
+                                    "downsampled ({}x{}) map sizes",
+                                    M, orig.width(), orig.height(), low.width(), low.height()));
+    if (N < 1 || N > 64) throw MesoError(fmt::format("scaling function: N = {} must be in [1, 64]", N));
+    if (int64_t(orig.width()) * low.height() != int64_t(orig.height()) * low.width())
+        throw MesoError("scaling function: the original and downsampled maps have different aspect ratios");
+    if (opt.orig_paths < 1 || opt.low_paths < 1)
+        throw MesoError("scaling function: orig_paths and low_paths must be at least 1");
+    if (!(opt.epsilon > 0) || !std::isfinite(opt.epsilon))
+        throw MesoError(fmt::format("scaling function: epsilon = {} must be positive", opt.epsilon));
+    if (opt.max_bounces < 1) throw MesoError("scaling function: max_bounces must be >= 1");
+    m_bins = N * N;
+    m_slope_orig = max_slope(orig);
+    m_slope_low = max_slope(low);
+    const size_t n = size_t(M) * M * m_bins * m_bins * 3;
+    for (auto *v : {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq}) v->assign(n, 0.0);
+    m_count_orig.assign(size_t(M) * M * m_bins, 0);
+    m_count_low.assign(size_t(M) * M * m_bins, 0);
+}
+
+void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
+    const int M = m_opt.M, N = m_opt.N, B = m_bins;
+    const int patch = int(task / size_t(B)), bo = int(task % size_t(B));
+    const int pa = patch % M, pb = patch / M;
+    const int box = bo % N, boy = bo / N;
+    const bool ir = m_opt.interreflections;
+    const int max_vertices = ir ? m_opt.max_bounces : 1;
+    PCG32 rng(hash_combine(round_seed, uint64_t(task)), mix_bits(round_seed ^ 0x5ca1eULL));
+    std::vector<Vec3> wi(static_cast<size_t>(B));
+    LineBuf buf(B);
+    std::vector<Spectrum> fl(static_cast<size_t>(B));
+    std::vector<size_t> vis;
+    const int J = m_opt.low_nodes;
+    const Material &base_low = m_low_mat.base();
+    const size_t base_idx = task * size_t(B) * 3;
+
+    // Line k's own stream: its ωo, ωi shift and position in P are the same on G_orig and on
+    // G_low (common random numbers: the two estimates of a bin are positively correlated).
+    auto line_rng = [&](int k) {
+        return PCG32(hash_combine(hash_combine(round_seed, uint64_t(task)), uint64_t(k)), mix_bits(round_seed ^ 0x11e5ULL));
+    };
+    auto draw_directions = [&](PCG32 &lr, Vec3 &wo) {
+        wo = square_to_hemisphere(Vec2((float(box) + lr.next_float()) / float(N), (float(boy) + lr.next_float()) / float(N)));
+        const float sa = lr.next_float(), sb = lr.next_float();
+        for (int b = 0; b < B; ++b)
+            wi[size_t(b)] = square_to_hemisphere(Vec2((float(b % N) + sa) / float(N), (float(b / N) + sb) / float(N)));
+    };
+    auto accumulate = [&](std::vector<double> &sum, std::vector<double> &sq, const std::vector<double> &line) {
+        for (size_t k = 0; k < size_t(B) * 3; ++k) {
+            const double x = line[k];
+            sum[base_idx + k] += x;
+            sq[base_idx + k] += x * x;
+        }
+    };
+    // Shoots one line of sight on field `hf` over patch R; returns the first vertex or false.
+    auto shoot = [&](PCG32 &lr, const Heightfield &hf, const PatchRegion &R, Vec3 wo, int k, int K, bool macro,
+                     Vertex &v, size_t &rejected, size_t &leaked) -> bool {
+        const ShootingRegion Q = shooting_region(hf, R, wo);
+        const int g = perfect_square_root(K);
+        double sx, sy;
+        if (g > 0) {
+            sx = (double(k % g) + lr.next_double()) / g;
+            sy = (double(k / g) + lr.next_double()) / g;
+        } else {
+            sx = lr.next_double();
+            sy = lr.next_double();
+        }
+        const double qx = Q.x0 + (Q.x1 - Q.x0) * sx, qy = Q.y0 + (Q.y1 - Q.y0) * sy;
+        const double fqx = std::floor(qx), fqy = std::floor(qy);
+        const int64_t ox = int64_t(fqx), oy = int64_t(fqy);
+        HeightfieldHit hit;
+        if (!hf.intersect(Vec3(float(qx - fqx), float(qy - fqy), float(Q.z_top)), -wo, 0.f, Infinity, hit, ox, oy)) {
+            ++leaked;
+            return false;
+        }
+        if (!Q.accepts(R, double(ox) + double(hit.x), double(oy) + double(hit.y))) {
+            ++rejected;
+            return false;
+        }
+        v = make_vertex(hf, hit, ox, oy, macro);
+        return true;
+    };
+
+    size_t orig_lines = 0, low_lines = 0, vertices = 0, rejected = 0, leaked = 0;
+    uint32_t acc_orig = 0, acc_low = 0;
+    // --- the original microgeometry: paths, next-event towards every ωi bin -----------------
+    const auto t0 = Clock::now();
+    {
+        const double cw = double(m_orig.width()) / M, ch = double(m_orig.height()) / M;
+        const PatchRegion R{pa * cw, pb * ch, (pa + 1) * cw, (pb + 1) * ch};
+        const int K = m_opt.orig_paths;
+        for (int k = 0; k < K; ++k) {
+            Vec3 wo;
+            PCG32 lr = line_rng(k);
+            draw_directions(lr, wo);
+            ++orig_lines;
+            Vertex v;
+            if (!shoot(lr, m_orig, R, wo, k, K, false, v, rejected, leaked)) continue;
+            ++acc_orig;
+            buf.clear();
+            Spectrum throughput(1.f);
+            Vec3 w_out = wo;
+            for (int depth = 1;; ++depth) {
+                ++vertices;
+                const Frame &fr = v.ctx.frame;
+                const Vec3 lwo = fr.to_local(w_out);
+                if (!(lwo.z > 0.f)) break;
+                const Vec3 org = spawn_origin(v);
+                for (int b = 0; b < B; ++b) {
+                    const Vec3 lwi = fr.to_local(wi[size_t(b)]);
+                    if (!(lwi.z > 0.f)) continue;
+                    const Spectrum f = m_base.eval(v.ctx, lwo, lwi);
+                    if (f.is_black()) continue;
+                    if (!unoccluded_by_slope(wi[size_t(b)], m_slope_orig) &&
+                        m_orig.occluded(org, wi[size_t(b)], 0.f, Infinity, v.ox, v.oy))
+                        continue;
+                    const Spectrum c = throughput * f;
+                    double *pir = &buf.b[size_t(b) * 3];
+                    for (int q = 0; q < 3; ++q) pir[q] += c[q];
+                    if (depth == 1) {
+                        double *p1 = &buf.a[size_t(b) * 3];
+                        for (int q = 0; q < 3; ++q) p1[q] += c[q];
+                    }
+                }
+                if (depth >= max_vertices) break;
+                const float u_lobe = rng.next_float(), u0 = rng.next_float(), u1 = rng.next_float();
+                BSDFSample bs;
+                if (!m_base.sample(v.ctx, lwo, u_lobe, Vec2(u0, u1), bs) || bs.weight.is_black() || !(bs.wi.z > 0.f))
+                    break;
+                throughput *= bs.weight;
+                if (m_opt.roulette_start > 0 && depth >= m_opt.roulette_start) {
+                    const float q = std::min(1.f, throughput.max());
+                    if (!(rng.next_float() < q)) break;
+                    throughput *= 1.f / q;
+                }
+                const Vec3 dir = normalize(fr.to_world(bs.wi));
+                HeightfieldHit next;
+                if (!m_orig.intersect(spawn_origin(v), dir, 0.f, Infinity, next, v.ox, v.oy)) break;
+                v = make_vertex(m_orig, next, v.ox, v.oy);
+                w_out = -dir;
+            }
+            accumulate(m_n1, m_n1sq, buf.a);
+            if (ir) accumulate(m_nir, m_nirsq, buf.b);
+        }
+    }
+    const double t_orig = seconds_since(t0);
+    // --- the downsampled model: one bounce, f'_low in the macro frame -----------------------
+    const auto t1 = Clock::now();
+    {
+        const double cw = double(m_low.width()) / M, ch = double(m_low.height()) / M;
+        const PatchRegion R{pa * cw, pb * ch, (pa + 1) * cw, (pb + 1) * ch};
+        const int K = m_opt.low_paths;
+        for (int k = 0; k < K; ++k) {
+            Vec3 wo;
+            PCG32 lr = line_rng(k);
+            draw_directions(lr, wo);
+            ++low_lines;
+            Vertex v;
+            if (!shoot(lr, m_low, R, wo, k, K, true, v, rejected, leaked)) continue;
+            ++acc_low;
+            buf.clear();
+            const Vec3 org = spawn_origin(v);
+            const MultiLobeBrdf &fl_patch = m_low_mat.patch(v.ctx.uv);
+            if (J == 0) {
+                fl_patch.eval_batch(v.ctx, wo, wi.data(), B, fl.data());
+            } else {
+                // f'_low = Σ_k c_k base(F_k ωo, F_k ωi) as an expectation over nodes: J nodes
+                // stratified in the CDF of c_k over the nodes that face ωo (the others add 0).
+                const auto &nodes = fl_patch.nodes();
+                vis.clear();
+                double total = 0;
+                for (size_t q = 0; q < nodes.size(); ++q)
+                    if (nodes[q].frame.to_local(wo).z > 0.f) vis.push_back(q), total += nodes[q].weight;
+                std::fill(fl.begin(), fl.end(), Spectrum(0.f));
+                if (total > 0) {
+                    const double xi = rng.next_double();
+                    size_t q = 0;
+                    double cum = 0;
+                    for (int j = 0; j < J; ++j) {
+                        const double target = (double(j) + xi) / J * total;
+                        while (q + 1 < vis.size() && cum + nodes[vis[q]].weight <= target) cum += nodes[vis[q]].weight, ++q;
+                        const Frame &F = nodes[vis[q]].frame;
+                        const Vec3 lo = F.to_local(wo);
+                        const float scale = float(total / J);
+                        for (int b = 0; b < B; ++b) {
+                            const Vec3 li = F.to_local(wi[size_t(b)]);
+                            if (!(li.z > 0.f) || !(wi[size_t(b)].z > 0.f)) continue;
+                            fl[size_t(b)] += base_low.eval(v.ctx, lo, li) * scale;
+                        }
+                    }
+                }
+            }
+            for (int b = 0; b < B; ++b) {
+                const Vec3 &w = wi[size_t(b)];
+                const Spectrum &f = fl[size_t(b)];
+                if (f.is_black() || !(dot(v.n, w) > 0.f)) continue;  // below the h_low facet: self-shadowed
+                if (!unoccluded_by_slope(w, m_slope_low) && m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy)) continue;
+                double *p = &buf.a[size_t(b) * 3];
+                for (int q = 0; q < 3; ++q) p[q] += f[q];
+            }
+            accumulate(m_d, m_dsq, buf.a);
+        }
+    }
+    const double t_low = seconds_since(t1);
+    m_count_orig[task] += acc_orig;
+    m_count_low[task] += acc_low;
+    static std::mutex mu;
+    std::lock_guard<std::mutex> lock(mu);
+    m_stats.orig_lines += orig_lines;
+    m_stats.low_lines += low_lines;
+    m_stats.orig_vertices += vertices;
+    m_stats.rejected += rejected;
+    m_stats.leaked += leaked;
+    m_stats.core_seconds_orig += t_orig;
+    m_stats.core_seconds_low += t_low;
+}
+
+void ScalingEstimator::add_round() {
+    const size_t tasks = size_t(m_opt.M) * m_opt.M * m_bins;
+    const uint64_t round_seed = hash_combine(m_opt.seed, uint64_t(m_stats.rounds) + 1);
+    std::atomic<size_t> done{0};
+    std::mutex mu;
+    const auto t0 = Clock::now();
+    tbb::parallel_for(size_t(0), tasks, [&](size_t t) {
+        trace_task(t, round_seed);
+        const size_t d = ++done;
+        if (m_opt.progress && (d % 16 == 0 || d == tasks)) {
+            std::lock_guard<std::mutex> lock(mu);
+            m_opt.progress(double(d) / double(tasks));
+        }
+    });
+    m_stats.seconds += seconds_since(t0);
+    ++m_stats.rounds;
+}
+
+double ScalingEstimator::denom_mean(int ch) const {
+    double s = 0;
+    size_t n = 0;
+    const size_t tasks = size_t(m_opt.M) * m_opt.M * m_bins;
+    for (size_t t = 0; t < tasks; ++t) {
+        const double c = m_count_low[t];
+        if (c == 0) continue;
+        for (int b = 0; b < m_bins; ++b) s += m_d[(t * m_bins + b) * 3 + ch] / c;
+        n += size_t(m_bins);
+    }
+    return n ? s / double(n) : 0.0;
+}
+
+double ScalingEstimator::R(int patch, int bi, int bo, int ch, bool ir) const {
+    const size_t t = size_t(patch) * m_bins + bo;
+    const size_t k = (t * m_bins + bi) * 3 + ch;
+    const double no = m_count_orig[t], nl = m_count_low[t];
+    const double eps = m_opt.epsilon * denom_mean(ch);
+    const double num = no > 0 ? (ir ? m_nir[k] : m_n1[k]) / no : 0.0;
+    const double den = nl > 0 ? m_d[k] / nl : 0.0;
+    return (num + eps) / (den + eps);
+}
+
+void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, ScalingStats &stats) const {
+    const int M = m_opt.M, N = m_opt.N, B = m_bins, P = M * M;
+    const size_t BB = size_t(B) * B;  // angular bin pairs (bo, bi), index bo B + bi
+    stats = m_stats;
+
+    struct Out {
+        double med = 0, p90 = 0, mx = 0, med_outer = 0, med_paper = 0, t_max = 0, energy = 0, svd_err = 0, ts_err = 0,
+               paper_err = 0;
+        std::vector<double> sv;
+    };
+    auto build = [&](bool use_ir, ScalingTables &tab, Out &o) {
+        const std::vector<double> &sum = use_ir ? m_nir : m_n1, &sq = use_ir ? m_nirsq : m_n1sq;
+        // Per (patch, bin pair, channel): numerator and denominator means and their variances.
+        const size_t n_all = size_t(P) * BB * 3;
+        std::vector<double> num(n_all), den(n_all), vnum(n_all), vden(n_all);
+        tbb::parallel_for(size_t(0), size_t(P) * B, [&](size_t t) {
+            const double no = m_count_orig[t], nl = m_count_low[t];
+            for (size_t k = t * B * 3; k < (t + 1) * B * 3; ++k) {
+                double a = 0, va = 0, d = 0, vd = 0;
+                if (no > 0) {
+                    a = sum[k] / no;
+                    va = no > 1 ? std::max(0.0, (sq[k] - no * a * a) / (no - 1)) / no : a * a;
+                }
+                if (nl > 0) {
+                    d = m_d[k] / nl;
+                    vd = nl > 1 ? std::max(0.0, (m_dsq[k] - nl * d * d) / (nl - 1)) / nl : d * d;
+                }
+                num[k] = a, vnum[k] = va, den[k] = d, vden[k] = vd;
+            }
+        });
+        auto at = [&](int p, size_t j, int c) { return (size_t(p) * BB + j) * 3 + c; };
+        // Rank-1 factorisation by marginal matching (iterative proportional fitting):
+        //   S_b = Σ_P num_Pb / Σ_P T_P den_Pb,   T_P = Σ_b num_Pb / Σ_b S_b den_Pb,
+        // so that T S f'_low reproduces the original's reflected energy in every bin pair
+        // (summed over patches) and in every patch (summed over bin pairs). For an exactly
+        // rank-1 R it returns R's factors; eq. 22-24 (means of per-bin ratios) are the same
+        // in that case but divide by every noisy, near-empty denominator (see scaling.h).
+        tab.M = M, tab.N = N;
+        tab.T = Image(M, M, 3);
+        tab.S = Image(N * N, N * N, 3);
+        std::vector<double> T(size_t(P) * 3, 1.0), S(BB * 3, 1.0);
+        for (int c = 0; c < 3; ++c) {
+            double dtot = 0;
+            for (int p = 0; p < P; ++p)
+                for (size_t j = 0; j < BB; ++j) dtot += den[at(p, j, c)];
+            const double eps_b = m_opt.epsilon * dtot / double(BB);       // per bin pair, summed over patches
+            const double eps_p = m_opt.epsilon * dtot / double(P);        // per patch, summed over bin pairs
+            for (int it = 0; it < 30; ++it) {
+                for (size_t j = 0; j < BB; ++j) {
+                    double a = 0, d = 0;
+                    for (int p = 0; p < P; ++p) a += num[at(p, j, c)], d += T[size_t(p) * 3 + c] * den[at(p, j, c)];
+                    S[j * 3 + c] = (a + eps_b) / (d + eps_b);
+                }
+                double change = 0;
+                for (int p = 0; p < P; ++p) {
+                    double a = 0, d = 0;
+                    for (size_t j = 0; j < BB; ++j) a += num[at(p, j, c)], d += S[j * 3 + c] * den[at(p, j, c)];
+                    const double t = (a + eps_p) / (d + eps_p);
+                    change = std::max(change, std::abs(t / T[size_t(p) * 3 + c] - 1.0));
+                    T[size_t(p) * 3 + c] = t;
+                }
+                if (change < 1e-7) break;
+            }
+            double mean = 0;
+            for (int p = 0; p < P; ++p) mean += T[size_t(p) * 3 + c] / P;
+            if (mean > 0) {
+                for (int p = 0; p < P; ++p) T[size_t(p) * 3 + c] /= mean;
+                for (size_t j = 0; j < BB; ++j) S[j * 3 + c] *= mean;
+            }
+        }
+        for (int p = 0; p < P; ++p)
+            for (int c = 0; c < 3; ++c) tab.T.at(p % M, p / M, c) = float(T[size_t(p) * 3 + c]);
+        // Standard errors (delta method; numerator and denominator independent, T or S fixed).
+        std::vector<double> s_rel, s_rel_outer, s_rel_paper;
+        auto outer = [&](int b) { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; };
+        for (size_t j = 0; j < BB; ++j) {
+            const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
+            tab.set_S_bin(bi, bo, Spectrum(float(S[j * 3]), float(S[j * 3 + 1]), float(S[j * 3 + 2])));
+            double a = 0, va = 0, d = 0, vd = 0, va_p = 0, vd_p = 0;
+            for (int p = 0; p < P; ++p) {
+                const double t = T[size_t(p) * 3 + 1];
+                const size_t task = size_t(p) * B + size_t(bo);
+                a += num[at(p, j, 1)], va += vnum[at(p, j, 1)];
+                d += t * den[at(p, j, 1)], vd += t * t * vden[at(p, j, 1)];
+                // The paper's counts: 2500 paths per effective BRDF (our per-line variance).
+                va_p += vnum[at(p, j, 1)] * m_count_orig[task] / 2500.0;
+                vd_p += t * t * vden[at(p, j, 1)] * m_count_low[task] / 2500.0;
+            }
+            if (a > 0 && d > 0) {
+                const double rel = std::sqrt(va / (a * a) + vd / (d * d));
+                s_rel_paper.push_back(std::sqrt(va_p / (a * a) + vd_p / (d * d)));
+                s_rel.push_back(rel);
+                if (outer(bi) && outer(bo)) s_rel_outer.push_back(rel);
+            }
+        }
+        o.med = median_of(s_rel);
+        o.p90 = quantile_of(s_rel, 0.9);
+        o.mx = s_rel.empty() ? 0.0 : *std::max_element(s_rel.begin(), s_rel.end());
+        o.med_outer = median_of(s_rel_outer);
+        o.med_paper = median_of(s_rel_paper);
+        o.t_max = 0;
+        for (int p = 0; p < P; ++p) {
+            double a = 0, va = 0, d = 0, vd = 0;
+            for (size_t j = 0; j < BB; ++j) {
+                const double sj = S[j * 3 + 1];
+                a += num[at(p, j, 1)], va += vnum[at(p, j, 1)];
+                d += sj * den[at(p, j, 1)], vd += sj * sj * vden[at(p, j, 1)];
+            }
+            if (a > 0 && d > 0) o.t_max = std::max(o.t_max, std::sqrt(va / (a * a) + vd / (d * d)));
+        }
+        // Rank-1 check (green): the sampled R~ = (num + e) / (den + e) per patch and bin pair,
+        // e = 5% of the bin pair's mean denominator over patches (shrinks near-empty cells
+        // towards 1), as a P x BB matrix; its SVD against this factorisation and eq. 22-24's.
+        Eigen::MatrixXd A(P, Eigen::Index(BB));
+        for (size_t j = 0; j < BB; ++j) {
+            double dm = 0;
+            for (int p = 0; p < P; ++p) dm += den[at(p, j, 1)] / P;
+            const double e = 0.05 * dm + 1e-30;
+            for (int p = 0; p < P; ++p) A(p, Eigen::Index(j)) = (num[at(p, j, 1)] + e) / (den[at(p, j, 1)] + e);
+        }
+        const Eigen::MatrixXd G = A * A.transpose();
+        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(G);
+        std::vector<double> lam;
+        for (int p = 0; p < P; ++p) lam.push_back(std::max(0.0, es.eigenvalues()(p)));
+        std::sort(lam.rbegin(), lam.rend());
+        double tot = 0;
+        for (double l : lam) tot += l;
+        o.sv.clear();
+        for (double l : lam) o.sv.push_back(std::sqrt(l));
+        o.energy = tot > 0 ? lam[0] / tot : 1.0;
+        o.svd_err = tot > 0 ? std::sqrt(std::max(0.0, 1.0 - lam[0] / tot)) : 0.0;
+        // Eq. 22-24 on the same R~: S' = mean over patches, T' = mean over bins / its mean.
+        std::vector<double> Sp(BB, 0.0), Tp(size_t(P), 0.0);
+        for (int p = 0; p < P; ++p)
+            for (size_t j = 0; j < BB; ++j) Sp[j] += A(p, Eigen::Index(j)) / P, Tp[size_t(p)] += A(p, Eigen::Index(j)) / double(BB);
+        double tm = 0;
+        for (double t : Tp) tm += t / P;
+        double e_ts = 0, e_paper = 0;
+        for (int p = 0; p < P; ++p)
+            for (size_t j = 0; j < BB; ++j) {
+                const double r = A(p, Eigen::Index(j));
+                const double a = r - T[size_t(p) * 3 + 1] * S[j * 3 + 1], b = r - Tp[size_t(p)] / tm * Sp[j];
+                e_ts += a * a, e_paper += b * b;
+            }
+        o.ts_err = tot > 0 ? std::sqrt(e_ts / tot) : 0.0;
+        o.paper_err = tot > 0 ? std::sqrt(e_paper / tot) : 0.0;
+    };
+    Out o1;
+    build(false, single, o1);
+    stats.S_rel_se_median = o1.med, stats.S_rel_se_p90 = o1.p90, stats.S_rel_se_max = o1.mx;
+    stats.S_rel_se_median_outer = o1.med_outer, stats.T_rel_se_max = o1.t_max;
+    stats.rank1_energy = o1.energy, stats.rank1_svd_rel_error = o1.svd_err, stats.ts_rel_error = o1.ts_err;
+    stats.paper_ts_rel_error = o1.paper_err;
+    stats.S_rel_se_median_paper_counts = o1.med_paper;
+    stats.singular_values = o1.sv;
+    if (m_opt.interreflections) {
+        Out o2;
+        build(true, ir_tab, o2);
+        stats.S_ir_rel_se_median = o2.med, stats.S_ir_rel_se_p90 = o2.p90;
+        stats.S_ir_rel_se_median_outer = o2.med_outer, stats.T_ir_rel_se_max = o2.t_max;
+        stats.rank1_energy_ir = o2.energy, stats.rank1_svd_rel_error_ir = o2.svd_err, stats.ts_rel_error_ir = o2.ts_err;
+        stats.paper_ts_rel_error_ir = o2.paper_err;
+        stats.S_ir_rel_se_median_paper_counts = o2.med_paper;
+        stats.singular_values_ir = o2.sv;
+    } else {
+        ir_tab = ScalingTables{};
+    }
+}
+
+double ScalingEstimator::current_S_rel_se() const {
+    ScalingTables a, b;
+    ScalingStats s;
+    finish(a, b, s);
+    return m_opt.interreflections ? s.S_ir_rel_se_median : s.S_rel_se_median;
+}
+
+}  // namespace meso::prefilter

@@ -1,0 +1,127 @@
+// The scaling function of paper 004 (Wu et al. 2019), §4.3, §5.2 and §6, estimated directly
+// as its factors T(x) (M x M) and S(ωi, ωo) (N² x N², concentric bins, prefilter/model.h):
+//
+//   R(P, ωi, ωo) = f_eff(ωi, ωo; G_orig(P), f_orig) / f_eff(ωi, ωo; G_low(P), f'_low)   (eq. 12, 20)
+//   S(ωi, ωo)    = mean over the M² patches P of R                                      (eq. 24)
+//   T(P)         = mean over the angular bins of R(P, ·, ·) / C,  C: mean of T = 1     (eq. 22, 23)
+//
+// with the numerator single-bounce (eq. 6, tables `single`) and with interreflections
+// (eq. 17, tables `ir`) from the SAME traced paths (the first vertex's next-event terms are
+// the single-bounce estimate), the denominator single-bounce on h_low with f'_low (eq. 20:
+// the high-order terms of the low model are left to the path tracer, eq. 19).
+//
+// Bins, not points. Every value is a ratio of BIN INTEGRALS: the numerator and denominator of
+// R(P, bin_i, bin_o) are ∫∫ over the two concentric cells of f_eff·cos θi (projected-solid-angle
+// measure: the cells are equal-area in it), estimated with ωo jittered uniformly in its cell
+// and ωi on a randomly shifted copy of the bin grid (one shift per line of sight). The angular
+// mean of eq. 22 is over the N⁴ bin pairs, i.e. in the projected-solid-angle measure (the
+// paper's cosine-weighted direction sampling). This is what replaces the paper's exclusion of
+// θ > 75°: a ratio of integrals over a cell never divides a point value that vanishes at the
+// horizon, the outer ring's cells (θ from acos(sqrt(1 - ((N-1)/N)²)) = 69° at N = 15, to 90°)
+// are as well estimated as the others (ScalingStats reports their error separately), and
+// eq. 12's ε only guards genuinely empty cells: R = (num + ε d̄) / (den + ε d̄) with d̄ the
+// mean denominator over all bins of the level (per channel), so R → 1 where both vanish.
+//
+// Splatting (the cost lever). A line of sight along -ωo and the path it starts do not depend
+// on ωi, so every path vertex sends next-event terms towards ALL N² ωi bins: one traced path
+// gives a sample to N² bins (N² shadow rays, no extra intersections for the path itself).
+//
+// Work: for every patch P (M²) and ωo bin (N²), `orig_paths` lines of sight on G_orig
+// (positions stratified in P) and `low_paths` on G_low; (P, ωo bin) pairs run in parallel
+// (TBB), each with its own PCG32 stream (hash of seed, P, ωo bin): results depend on
+// (seed, options) only, not on the thread count. Rounds (add_round) can be added to reach a
+// target standard error; each round uses its own seed offset.
+//
+// Units: both heightfields in cell space (effective_brdf.h); `low` covers the same tile with
+// W_low = W / F cells (its heights in its own cell units). The low model's material (an
+// SvMultiLobe) is evaluated in the MACRO frame; the original's base in the micro-normal frame.
+#pragma once
+#include <cstdint>
+#include <functional>
+#include <vector>
+#include "geometry/heightfield.h"
+#include "prefilter/effective_brdf.h"
+#include "prefilter/model.h"
+#include "render/material.h"
+
+namespace meso::prefilter {
+
+struct ScalingOptions {
+    int M = 4;                     ///< spatial resolution of T (must divide both maps' sizes)
+    int N = 15;                    ///< angular resolution of S (per axis of the concentric square)
+    bool interreflections = true;  ///< also estimate the _ir tables (paths beyond one vertex)
+    int orig_paths = 64;           ///< lines of sight per (patch, ωo bin) on G_orig, per round
+    int low_paths = 64;            ///< lines of sight per (patch, ωo bin) on G_low, per round
+    /// f'_low on G_low: 0 = its deterministic quadrature (all nodes), J > 0 = an unbiased
+    /// estimate from J nodes per line of sight, stratified by node weight (cost / nodes·J)
+    int low_nodes = 4;
+    int max_bounces = kAllBounces; ///< path vertices on G_orig (with interreflections)
+    int roulette_start = 4;        ///< Russian roulette from this vertex (effective_brdf.h)
+    double epsilon = 1e-3;         ///< ε of eq. 12, relative to the mean denominator
+    uint64_t seed = 1;
+    /// Called with the fraction of (patch, ωo bin) tasks of the current round done (any thread,
+    /// serialised by the caller's responsibility: it is called under a mutex here).
+    std::function<void(double)> progress;
+};
+
+/// What one level's estimate reached (all relative standard errors are of the green channel).
+struct ScalingStats {
+    size_t orig_lines = 0, low_lines = 0;      ///< lines of sight traced (all rounds)
+    size_t orig_vertices = 0;                  ///< path vertices on G_orig (each sends N² shadow rays)
+    size_t rejected = 0, leaked = 0;           ///< hits outside P (when M > 1), missed surfaces
+    double core_seconds_orig = 0, core_seconds_low = 0;  ///< thread time spent on G_orig / G_low (summed over threads and rounds)
+    double seconds = 0;                        ///< wall time of all rounds
+    int rounds = 0;
+    // Standard errors (delta method, numerator and denominator independent).
+    double S_rel_se_median = 0, S_rel_se_p90 = 0, S_rel_se_max = 0;
+    double S_rel_se_median_outer = 0;          ///< over ωo and ωi both in the outer ring of bins (grazing)
+    double T_rel_se_max = 0;
+    /// What the paper's sample counts (2500 paths per effective-BRDF estimate, §7.1) would give
+    /// for the median of S with the per-line variances measured here: the noise target.
+    double S_rel_se_median_paper_counts = 0, S_ir_rel_se_median_paper_counts = 0;
+    double S_ir_rel_se_median = 0, S_ir_rel_se_p90 = 0, S_ir_rel_se_median_outer = 0, T_ir_rel_se_max = 0;
+    // Rank-1 check of the full sampled R (M² x N⁴ matrix, green channel; §6 Fig. 6, 10).
+    double rank1_energy = 0;        ///< σ1² / Σ σk²
+    double rank1_svd_rel_error = 0; ///< ||R - σ1 u1 v1ᵀ||_F / ||R||_F
+    double ts_rel_error = 0;        ///< ||R - T ⊗ S||_F / ||R||_F (this factorisation)
+    double paper_ts_rel_error = 0;  ///< the same for eq. 22-24's T', S' (means of R), for comparison
+    double rank1_energy_ir = 0, rank1_svd_rel_error_ir = 0, ts_rel_error_ir = 0, paper_ts_rel_error_ir = 0;
+    std::vector<double> singular_values, singular_values_ir;  ///< all M² of them, descending
+};
+
+/// Accumulates the sums of one level over rounds, then produces T and S.
+class ScalingEstimator {
+public:
+    /// Keeps references. `low_material` is evaluated in the macro frame (an SvMultiLobe).
+    /// Throws MesoError when M or N are out of range (M ≥ 1 dividing both maps' sizes; N in
+    /// [1, 64]), the maps' aspect ratios differ, or paths < 1.
+    ScalingEstimator(const Heightfield &orig, const Material &base, const Heightfield &low,
+                     const SvMultiLobe &low_material, const ScalingOptions &opt);
+
+    /// One more round of opt.orig_paths / opt.low_paths lines per (patch, ωo bin).
+    void add_round();
+    /// T and S (single and, with interreflections, ir) from the sums so far, and their stats.
+    void finish(ScalingTables &single, ScalingTables &ir, ScalingStats &stats) const;
+    /// The median relative standard error of S (ir when estimated, else single) so far.
+    double current_S_rel_se() const;
+    /// R(P, bin_i, bin_o) for one channel from the current sums (tests, diagnostics).
+    double R(int patch, int bi, int bo, int channel, bool ir) const;
+    const ScalingStats &stats() const { return m_stats; }
+
+private:
+    void trace_task(size_t task, uint64_t round_seed);
+    double denom_mean(int ch) const;
+
+    const Heightfield &m_orig, &m_low;
+    const Material &m_base;
+    const SvMultiLobe &m_low_mat;
+    ScalingOptions m_opt;
+    int m_bins = 0;  // N²
+    // Flattened [patch][bo][bi][ch]:
+    std::vector<double> m_n1, m_n1sq, m_nir, m_nirsq, m_d, m_dsq;
+    std::vector<uint32_t> m_count_orig, m_count_low;  // accepted lines per (patch, bo)
+    double m_slope_orig = 0, m_slope_low = 0;  // max |∇h| (detail::max_slope)
+    ScalingStats m_stats;
+};
+
+}  // namespace meso::prefilter
