@@ -202,6 +202,10 @@ int run_prefilter(const PrefilterOptions &o) {
         nopt.cell_size = o.tile_size / map.width;
         nopt.em.lobes = o.lobes;
         nopt.em.exact_kappa = true;
+        // Flat patches are deltas: with the EM's default cap (1e6) the lobe's 1e-3 rad spread
+        // still cuts nodes off for ωo within 0.06° of the horizon; 1e9 (vmf.h's limit) makes
+        // that 3e-5 rad.
+        nopt.em.max_kappa = 1e9;
         L.ndf = prefilter::fit_svndf(orig_map_units, F, nopt);
         timing["svndf_fit_s"] = since(t0);
         size_t converged = 0;

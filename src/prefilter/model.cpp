@@ -44,13 +44,20 @@ Vec2 concentric_disk_to_square(Vec2 d) {
 Vec2 hemisphere_to_square(Vec3 w) {
     const double l = std::sqrt(double(w.x) * w.x + double(w.y) * w.y + double(w.z) * w.z);
     if (!(l > 0) || !std::isfinite(l)) return Vec2(0.5f, 0.5f);
-    double x = w.x / l, y = w.y / l;
-    const double r = std::sqrt(x * x + y * y);
-    if (r > 1) x /= r, y /= r;
-    return concentric_disk_to_square(Vec2(float(x), float(y)));
+    const double x = w.x / l, y = w.y / l, z = std::abs(double(w.z) / l);
+    const double s = std::sqrt(x * x + y * y);
+    if (!(s > 0)) return Vec2(0.5f, 0.5f);
+    const double rho = std::atan2(s, z) / (Pi / 2);  // θ / 90°: equidistant in the polar angle
+    return concentric_disk_to_square(Vec2(float(rho * x / s), float(rho * y / s)));
 }
 
-Vec3 square_to_hemisphere(Vec2 u) { return square_to_cosine_hemisphere(u); }
+Vec3 square_to_hemisphere(Vec2 u) {
+    const Vec2 d = square_to_uniform_disk_concentric(u);
+    const double rho = std::min(1.0, std::sqrt(double(d.x) * d.x + double(d.y) * d.y));
+    if (!(rho > 0)) return Vec3(0.f, 0.f, 1.f);
+    const double theta = rho * (Pi / 2), st = std::sin(theta);
+    return Vec3(float(st * d.x / rho), float(st * d.y / rho), float(std::cos(theta)));
+}
 
 namespace {
 /// Bin-centre interpolation along one axis of N bins: lower index and weight of the upper.

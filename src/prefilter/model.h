@@ -23,11 +23,14 @@
 // estimators all shade in the macro frame; h_low contributes position, occlusion and parallax.
 //
 // Angular bins: the concentric map (Shirley and Chiu 1997) of the unit square onto the disk,
-// lifted to the hemisphere (z = sqrt(1 - x² - y²)): equal-area in PROJECTED solid angle, so
-// every bin has the same cosine-weighted measure π / N². Bin (bx, by) covers
-// [bx/N, (bx+1)/N) x [by/N, (by+1)/N) of the square, index b = by N + bx; the lookup is
-// bilinear in (ωi's square coordinates) x bilinear in (ωo's), between bin centres, clamped
-// at the square's border (quadrilinear overall).
+// lifted to the hemisphere EQUIDISTANTLY in the polar angle (disk radius ρ = θ / 90°, azimuth
+// kept), not by the cosine-weighted lift z = sqrt(1 - ρ²): with the latter the outer ring of
+// N = 15 bins would span θ = 60°..90° (r from 13/15 to 1 in sin θ), far too coarse where
+// shadowing and masking change fastest; here every ring spans 90° / N (6° at N = 15), so
+// grazing directions get bins of their own (see prefilter/scaling.h on grazing angles).
+// Bin (bx, by) covers [bx/N, (bx+1)/N) x [by/N, (by+1)/N) of the square, index b = by N + bx;
+// the lookup is bilinear in (ωi's square coordinates) x bilinear in (ωo's), between bin
+// centres, clamped at the square's border (quadrilinear overall).
 #pragma once
 #include <memory>
 #include <string>
@@ -46,9 +49,10 @@ namespace meso::prefilter {
 /// Inverse of square_to_uniform_disk_concentric (sampling/warp.h): a point of the closed unit
 /// disk to [0,1]², continuous, exact inverse up to rounding.
 Vec2 concentric_disk_to_square(Vec2 d);
-/// A hemisphere direction (z >= 0, normalised here; z < 0 is mirrored up) to its square coordinates.
+/// A hemisphere direction (z >= 0, normalised here; z < 0 is mirrored up) to its square
+/// coordinates (concentric, equidistant in θ: see the header).
 Vec2 hemisphere_to_square(Vec3 w);
-/// Square coordinates to the hemisphere (square_to_cosine_hemisphere).
+/// Square coordinates to the hemisphere (the inverse of hemisphere_to_square).
 Vec3 square_to_hemisphere(Vec2 u);
 
 /// T (M x M) and S (N² x N²) of one level, RGB.

@@ -425,13 +425,13 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
             if (a > 0 && d > 0) o.t_max = std::max(o.t_max, std::sqrt(va / (a * a) + vd / (d * d)));
         }
         // Rank-1 check (green): the sampled R~ = (num + e) / (den + e) per patch and bin pair,
-        // e = 5% of the bin pair's mean denominator over patches (shrinks near-empty cells
-        // towards 1), as a P x BB matrix; its SVD against this factorisation and eq. 22-24's.
+        // e = 1% of the bin pair's mean denominator over patches (shrinks near-empty, noisy
+        // cells towards 1), as a P x BB matrix; its SVD against this factorisation and eq. 22-24's.
         Eigen::MatrixXd A(P, Eigen::Index(BB));
         for (size_t j = 0; j < BB; ++j) {
             double dm = 0;
             for (int p = 0; p < P; ++p) dm += den[at(p, j, 1)] / P;
-            const double e = 0.05 * dm + 1e-30;
+            const double e = 0.01 * dm + 1e-30;
             for (int p = 0; p < P; ++p) A(p, Eigen::Index(j)) = (num[at(p, j, 1)] + e) / (den[at(p, j, 1)] + e);
         }
         const Eigen::MatrixXd G = A * A.transpose();

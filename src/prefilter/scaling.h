@@ -2,35 +2,49 @@
 // as its factors T(x) (M x M) and S(ωi, ωo) (N² x N², concentric bins, prefilter/model.h):
 //
 //   R(P, ωi, ωo) = f_eff(ωi, ωo; G_orig(P), f_orig) / f_eff(ωi, ωo; G_low(P), f'_low)   (eq. 12, 20)
-//   S(ωi, ωo)    = mean over the M² patches P of R                                      (eq. 24)
-//   T(P)         = mean over the angular bins of R(P, ·, ·) / C,  C: mean of T = 1     (eq. 22, 23)
+//   R ≈ T(P) S(ωi, ωo),  T of mean 1                                                  (eq. 14, 21)
 //
 // with the numerator single-bounce (eq. 6, tables `single`) and with interreflections
 // (eq. 17, tables `ir`) from the SAME traced paths (the first vertex's next-event terms are
 // the single-bounce estimate), the denominator single-bounce on h_low with f'_low (eq. 20:
 // the high-order terms of the low model are left to the path tracer, eq. 19).
 //
-// Bins, not points. Every value is a ratio of BIN INTEGRALS: the numerator and denominator of
-// R(P, bin_i, bin_o) are ∫∫ over the two concentric cells of f_eff·cos θi (projected-solid-angle
-// measure: the cells are equal-area in it), estimated with ωo jittered uniformly in its cell
-// and ωi on a randomly shifted copy of the bin grid (one shift per line of sight). The angular
-// mean of eq. 22 is over the N⁴ bin pairs, i.e. in the projected-solid-angle measure (the
-// paper's cosine-weighted direction sampling). This is what replaces the paper's exclusion of
-// θ > 75°: a ratio of integrals over a cell never divides a point value that vanishes at the
-// horizon, the outer ring's cells (θ from acos(sqrt(1 - ((N-1)/N)²)) = 69° at N = 15, to 90°)
-// are as well estimated as the others (ScalingStats reports their error separately), and
-// eq. 12's ε only guards genuinely empty cells: R = (num + ε d̄) / (den + ε d̄) with d̄ the
-// mean denominator over all bins of the level (per channel), so R → 1 where both vanish.
+// Bins, not points. num(P, bin_i, bin_o) and den(P, bin_i, bin_o) are INTEGRALS over the two
+// angular cells (of f_eff·cos θi), estimated with ωo jittered uniformly in its cell of the
+// square and ωi on a randomly shifted copy of the bin grid (one shift per line of sight).
+//
+// The factorisation. Eq. 22-24 average per-cell ratios num/den over patches (S) and over bins
+// (T); every near-empty, noisy denominator then enters a mean unguarded (the paper adds ε and
+// excludes θ > 75°). Here T and S are the rank-1 fit that MATCHES ENERGY (iterative
+// proportional fitting, ~10 sweeps):
+//     S_b = Σ_P num_Pb / Σ_P T_P den_Pb,     T_P = Σ_b num_Pb / Σ_b S_b den_Pb,
+// i.e. T S f'_low on h_low reflects exactly the original's energy in every bin pair (summed
+// over patches) and in every patch (summed over bin pairs). For an exactly rank-1 R it gives
+// R's factors, the same as eq. 22-24 (tested); on sampled data it is a ratio of sums over 16
+// patches or N⁴ bin pairs instead of a mean of ratios. ε (relative to the mean denominator)
+// only steers genuinely empty cells to 1. ScalingStats reports the rank-1 check of the full
+// sampled R (SVD) against both this fit and eq. 22-24.
+//
+// Grazing angles. Bins are equidistant in θ (prefilter/model.h): the outer ring is the last
+// 90°/N (84°..90° at N = 15), not the 60°..90° of a cosine-weighted lift, and its cells are
+// estimated like all others (the median error of the outer ring is reported separately). No
+// direction is excluded.
 //
 // Splatting (the cost lever). A line of sight along -ωo and the path it starts do not depend
 // on ωi, so every path vertex sends next-event terms towards ALL N² ωi bins: one traced path
-// gives a sample to N² bins (N² shadow rays, no extra intersections for the path itself).
+// gives a sample to N² bins. Shadow rays rising faster than the map's steepest slope are
+// skipped exactly (detail::unoccluded_by_slope). On h_low, f'_low (a sum over ~144 nodes) is
+// estimated per line from `low_nodes` nodes drawn by weight (unbiased), and line k on h_low
+// reuses line k's ωo, ωi shift and position on the original (common random numbers).
 //
 // Work: for every patch P (M²) and ωo bin (N²), `orig_paths` lines of sight on G_orig
-// (positions stratified in P) and `low_paths` on G_low; (P, ωo bin) pairs run in parallel
-// (TBB), each with its own PCG32 stream (hash of seed, P, ωo bin): results depend on
-// (seed, options) only, not on the thread count. Rounds (add_round) can be added to reach a
-// target standard error; each round uses its own seed offset.
+// (positions stratified in P when a perfect square) and `low_paths` on G_low; (P, ωo bin)
+// pairs run in parallel (TBB), each with its own PCG32 streams (hash of seed, round, task,
+// line): results depend on (seed, options) only, not on the thread count. Rounds (add_round)
+// can be added to reach a target standard error.
+//
+// Standard errors: delta method with numerator and denominator taken as independent
+// (conservative: the common random numbers correlate them positively).
 //
 // Units: both heightfields in cell space (effective_brdf.h); `low` covers the same tile with
 // W_low = W / F cells (its heights in its own cell units). The low model's material (an
