@@ -168,6 +168,16 @@ public:
         return eval_macro(l, mo, mi);
     }
 
+    Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const override {
+        if (pdf) *pdf = 0.f;
+        if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+        const Local l = local(ctx);
+        const Vec3 mo = l.to_macro(ctx, wo), mi = l.to_macro(ctx, wi);
+        if (!(mo.z > 0.f) || !(mi.z > 0.f)) return Spectrum(0.f);
+        Spectrum v = m.f->patch(l.c.uv).eval_pdf(l.c, mo, mi, pdf);
+        return v.is_black() ? v : scaled(l, v, mo, mi);
+    }
+
     float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
         if (!(wo.z > 0.f) || !(wi.z > 0.f)) return 0.f;
         const Local l = local(ctx);
@@ -191,9 +201,12 @@ public:
         if (!(wi.z > 0.f)) return false;
         const Vec3 mi = l.to_macro(ctx, wi);
         if (!(mi.z > 0.f)) return false;
-        const float p = l.rotated ? f.pdf(l.c, mo, mi) : bs.pdf;
+        // Not rotated: bs is exact at mi (weight = f'_low / pdf); rotated: one eval_pdf pass.
+        float p = bs.pdf;
+        Spectrum e = bs.weight * bs.pdf;
+        if (l.rotated) e = f.eval_pdf(l.c, mo, mi, &p);
         if (!(p > 0.f) || !std::isfinite(p)) return false;
-        const Spectrum e = eval_macro(l, mo, mi);
+        if (!e.is_black()) e = scaled(l, e, mo, mi);
         out.wi = wi;
         out.pdf = p;
         out.weight = Spectrum(e.r / p, e.g / p, e.b / p);
@@ -231,7 +244,10 @@ private:
 
     Spectrum eval_macro(const Local &l, const Vec3 &mo, const Vec3 &mi) const {
         Spectrum v = m.f->patch(l.c.uv).eval(l.c, mo, mi);
-        if (v.is_black()) return v;
+        return v.is_black() ? v : scaled(l, v, mo, mi);
+    }
+    /// f'_low times T and S (as configured).
+    Spectrum scaled(const Local &l, Spectrum v, const Vec3 &mo, const Vec3 &mi) const {
         if (m.use_T) v *= m.tables->eval_T(l.c.uv);
         if (m.use_S) v *= m.tables->eval_S(mi, mo);
         return v;

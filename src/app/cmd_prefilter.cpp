@@ -43,7 +43,7 @@ struct PrefilterOptions {
     int64_t gen_seed = -1;
     double height_scale = 1.0, tile_size = 1.0;
     int M = 4, N = 15, lobes = 6, samples_per_cell = 2, paths = 64, low_paths = 64, low_nodes = 4, max_rounds = 8;
-    int quad_polar = 4, quad_azimuth = 6;
+    int quad_polar = 3, quad_azimuth = 4;  // 12 nodes per lobe: render cost of f'_low (see README)
     std::string interreflections = "on";
     double target_error = 0, epsilon = 1e-3;
     uint64_t seed = 1;

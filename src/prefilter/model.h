@@ -118,6 +118,9 @@ public:
     const Material &base() const { return *m_base; }
     Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
     float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
+    Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const override {
+        return patch(ctx.uv).eval_pdf(ctx, wo, wi, pdf);
+    }
     bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override;
     uint32_t flags() const override;
     Spectrum albedo_hint(const ShadingContext &ctx) const override;

@@ -113,6 +113,26 @@ void MultiLobeBrdf::eval_batch(const ShadingContext &ctx, const Vec3 &wo, const 
     for (int b = 0; b < n; ++b) out[b] = Spectrum(float(acc[size_t(b) * 3]), float(acc[size_t(b) * 3 + 1]), float(acc[size_t(b) * 3 + 2]));
 }
 
+Spectrum MultiLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf_out) const {
+    if (!pdf_out) return eval(ctx, wo, wi);
+    *pdf_out = 0.f;
+    if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+    double r = 0.0, g = 0.0, b = 0.0, total = 0.0, sum = 0.0;
+    for (const NdfNode &k : m_nodes) {
+        const Vec3 lo = k.frame.to_local(wo);
+        if (!(lo.z > 0.f)) continue;
+        total += k.weight;
+        const Vec3 li = k.frame.to_local(wi);
+        if (!(li.z > 0.f)) continue;
+        float p = 0.f;
+        const Spectrum f = m_base->eval_pdf(ctx, lo, li, &p);
+        r += k.weight * f.r, g += k.weight * f.g, b += k.weight * f.b;
+        sum += k.weight * double(p);
+    }
+    *pdf_out = total > 0.0 ? float(sum / total) : 0.f;
+    return Spectrum(float(r), float(g), float(b));
+}
+
 float MultiLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
     if (!(wo.z > 0.f) || !(wi.z > 0.f)) return 0.f;
     double total = 0.0, sum = 0.0;
@@ -129,14 +149,19 @@ float MultiLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &
 
 bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
     if (!(wo.z > 0.f)) return false;
-    // Node choice with probability c_k [F_k wo .z > 0] / Σ: two passes over the same test.
-    const double total = selection_total(wo);
+    // Node choice with probability c_k [F_k wo .z > 0] / Σ: one pass records the eligible
+    // nodes (the test of pdf()), then the choice scans the recorded weights.
+    thread_local std::vector<uint32_t> eligible;
+    eligible.clear();
+    double total = 0.0;
+    for (size_t q = 0; q < m_nodes.size(); ++q)
+        if (m_nodes[q].frame.to_local(wo).z > 0.f) eligible.push_back(uint32_t(q)), total += m_nodes[q].weight;
     if (!(total > 0.0)) return false;
     const double target = double(u_lobe) * total;
     const NdfNode *chosen = nullptr;
     double cum = 0.0, u_rescaled = 0.0;
-    for (const NdfNode &k : m_nodes) {
-        if (!(k.frame.to_local(wo).z > 0.f)) continue;
+    for (uint32_t q : eligible) {
+        const NdfNode &k = m_nodes[q];
         chosen = &k;
         if (target < cum + k.weight) {
             u_rescaled = (target - cum) / k.weight;
@@ -154,9 +179,9 @@ bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lo
     if (bs.flags & BSDF_Delta) return false;  // excluded in the constructor; defensive
     const Vec3 wi = normalize(chosen->frame.to_world(bs.wi));
     if (!(wi.z > 0.f)) return false;  // below the macro horizon: the path ends (pdf excludes it)
-    const float p = pdf(ctx, wo, wi);
+    float p = 0.f;
+    const Spectrum f = eval_pdf(ctx, wo, wi, &p);
     if (!(p > 0.f) || !std::isfinite(p)) return false;
-    const Spectrum f = eval(ctx, wo, wi);
     out.wi = wi;
     out.pdf = p;
     out.weight = Spectrum(f.r / p, f.g / p, f.b / p);

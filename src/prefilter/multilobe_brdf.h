@@ -89,6 +89,8 @@ public:
     Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
     float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
     bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override;
+    /// eval and pdf in one pass over the nodes.
+    Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const override;
     uint32_t flags() const override;
     Spectrum albedo_hint(const ShadingContext &ctx) const override;
     bool is_reciprocal() const override { return false; }

@@ -424,15 +424,29 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
             }
             if (a > 0 && d > 0) o.t_max = std::max(o.t_max, std::sqrt(va / (a * a) + vd / (d * d)));
         }
-        // Rank-1 check (green): the sampled R~ = (num + e) / (den + e) per patch and bin pair,
-        // e = 1% of the bin pair's mean denominator over patches (shrinks near-empty, noisy
-        // cells towards 1), as a P x BB matrix; its SVD against this factorisation and eq. 22-24's.
-        Eigen::MatrixXd A(P, Eigen::Index(BB));
+        // Rank-1 check (green), as paper 004 Fig. 6: the sampled R~ = (num + e) / (den + e) per
+        // patch and bin pair over the bin pairs whose centres are both at θ <= 75° (the
+        // paper's exclusion, for this diagnostic only: near-empty grazing cells of a sparse
+        // sample are pure noise in a per-cell ratio), e = 1% of the bin pair's mean denominator
+        // over patches; its SVD against this factorisation and eq. 22-24's.
+        std::vector<size_t> cols;
         for (size_t j = 0; j < BB; ++j) {
+            const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
+            auto theta_ok = [&](int b) {
+                const Vec3 w = square_to_hemisphere(Vec2((b % N + 0.5f) / N, (b / N + 0.5f) / N));
+                return w.z >= std::cos(75.0 * Pi / 180.0) - 1e-6;
+            };
+            if (theta_ok(bo) && theta_ok(bi)) cols.push_back(j);
+        }
+        if (cols.empty())
+            for (size_t j = 0; j < BB; ++j) cols.push_back(j);
+        Eigen::MatrixXd A(P, Eigen::Index(cols.size()));
+        for (size_t c = 0; c < cols.size(); ++c) {
+            const size_t j = cols[c];
             double dm = 0;
             for (int p = 0; p < P; ++p) dm += den[at(p, j, 1)] / P;
             const double e = 0.01 * dm + 1e-30;
-            for (int p = 0; p < P; ++p) A(p, Eigen::Index(j)) = (num[at(p, j, 1)] + e) / (den[at(p, j, 1)] + e);
+            for (int p = 0; p < P; ++p) A(p, Eigen::Index(c)) = (num[at(p, j, 1)] + e) / (den[at(p, j, 1)] + e);
         }
         const Eigen::MatrixXd G = A * A.transpose();
         Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(G);
@@ -446,16 +460,17 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
         o.energy = tot > 0 ? lam[0] / tot : 1.0;
         o.svd_err = tot > 0 ? std::sqrt(std::max(0.0, 1.0 - lam[0] / tot)) : 0.0;
         // Eq. 22-24 on the same R~: S' = mean over patches, T' = mean over bins / its mean.
-        std::vector<double> Sp(BB, 0.0), Tp(size_t(P), 0.0);
+        const size_t C = cols.size();
+        std::vector<double> Sp(C, 0.0), Tp(size_t(P), 0.0);
         for (int p = 0; p < P; ++p)
-            for (size_t j = 0; j < BB; ++j) Sp[j] += A(p, Eigen::Index(j)) / P, Tp[size_t(p)] += A(p, Eigen::Index(j)) / double(BB);
+            for (size_t c = 0; c < C; ++c) Sp[c] += A(p, Eigen::Index(c)) / P, Tp[size_t(p)] += A(p, Eigen::Index(c)) / double(C);
         double tm = 0;
         for (double t : Tp) tm += t / P;
         double e_ts = 0, e_paper = 0;
         for (int p = 0; p < P; ++p)
-            for (size_t j = 0; j < BB; ++j) {
-                const double r = A(p, Eigen::Index(j));
-                const double a = r - T[size_t(p) * 3 + 1] * S[j * 3 + 1], b = r - Tp[size_t(p)] / tm * Sp[j];
+            for (size_t c = 0; c < C; ++c) {
+                const double r = A(p, Eigen::Index(c));
+                const double a = r - T[size_t(p) * 3 + 1] * S[cols[c] * 3 + 1], b = r - Tp[size_t(p)] / tm * Sp[c];
                 e_ts += a * a, e_paper += b * b;
             }
         o.ts_err = tot > 0 ? std::sqrt(e_ts / tot) : 0.0;

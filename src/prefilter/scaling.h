@@ -94,7 +94,8 @@ struct ScalingStats {
     /// for the median of S with the per-line variances measured here: the noise target.
     double S_rel_se_median_paper_counts = 0, S_ir_rel_se_median_paper_counts = 0;
     double S_ir_rel_se_median = 0, S_ir_rel_se_p90 = 0, S_ir_rel_se_median_outer = 0, T_ir_rel_se_max = 0;
-    // Rank-1 check of the full sampled R (M² x N⁴ matrix, green channel; §6 Fig. 6, 10).
+    // Rank-1 check of the sampled R (M² x (bin pairs with both centres at θ ≤ 75°), green
+    // channel; §6 Fig. 6, 10; the paper excludes θ > 75° there too).
     double rank1_energy = 0;        ///< σ1² / Σ σk²
     double rank1_svd_rel_error = 0; ///< ||R - σ1 u1 v1ᵀ||_F / ||R||_F
     double ts_rel_error = 0;        ///< ||R - T ⊗ S||_F / ||R||_F (this factorisation)

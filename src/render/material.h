@@ -49,6 +49,12 @@ public:
     /// Returns false when no direction could be sampled (the path ends).
     virtual bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u,
                         BSDFSample &out) const = 0;
+    /// eval and, when `pdf` is not null, pdf(ctx, wo, wi) into *pdf: the same values as the two
+    /// calls (materials whose two passes share work, e.g. node sums, override it).
+    virtual Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
+        if (pdf) *pdf = this->pdf(ctx, wo, wi);
+        return eval(ctx, wo, wi);
+    }
     /// Union of the lobes this material can have.
     virtual uint32_t flags() const = 0;
     /// Approximate albedo for the `aov` integrator's albedo channel.

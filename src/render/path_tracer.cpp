@@ -115,7 +115,8 @@ Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sam
                 Vec3 wi = ctx.frame.to_local(ls.wi);
                 // Reflection-only surfaces cannot be lit from behind their geometric side.
                 bool ok = two_sided ? dot(ls.wi, ctx.ng) > 0.f : true;
-                Spectrum f = ok ? mat->eval(ctx, wo, wi) : Spectrum(0.f);
+                float bsdf_pdf = 0.f;
+                Spectrum f = ok ? mat->eval_pdf(ctx, wo, wi, ls.delta ? nullptr : &bsdf_pdf) : Spectrum(0.f);
                 if (!f.is_black()) {
                     Ray shadow = std::isinf(ls.dist) ? si.spawn_ray(ls.wi) : si.spawn_ray_to(si.p + ls.wi * ls.dist);
                     shadow.mask = ray.mask;  // the path's LoD level
@@ -123,7 +124,7 @@ Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sam
                     ++stats.shadow_rays;
                     if (!scene.occluded(shadow)) {
                         float light_pdf = pmf * ls.pdf;
-                        float w = ls.delta ? 1.f : power_heuristic(light_pdf, mat->pdf(ctx, wo, wi));
+                        float w = ls.delta ? 1.f : power_heuristic(light_pdf, bsdf_pdf);
                         L += beta * f * ls.L * (w / light_pdf);
                     }
                 }
