@@ -226,6 +226,14 @@ private:
         }
     };
 
+    /// The map's frame on the surface: s along dp/du, t along dp/dv (orthogonalised; so the
+    /// frame is left-handed where the uv parameterisation is), n.
+    static Frame uv_frame(Vec3 n, Vec3 dpdu, Vec3 dpdv) {
+        Frame f = Frame::from_normal_tangent(n, dpdu);
+        if (dot(f.t, dpdv) < 0.f) f.t = -f.t;
+        return f;
+    }
+
     Local local(const ShadingContext &ctx) const {
         Local l;
         l.c = ctx;
@@ -236,7 +244,12 @@ private:
         l.c.uv = Vec2(wrap(double(ctx.uv.x) * m.tu), wrap(double(ctx.uv.y) * m.tv));
         if (length_squared(ctx.n_macro) > 0.f) {
             l.rotated = true;
-            l.macro = Frame::from_normal_tangent(normalize(ctx.n_macro), ctx.dpdu_macro);
+            l.macro = uv_frame(normalize(ctx.n_macro), ctx.dpdu_macro, ctx.dpdv_macro);
+            l.c.frame = l.macro;
+        } else if (length_squared(ctx.dpdv) > 0.f && dot(cross(ctx.frame.n, ctx.frame.s), ctx.dpdv) < 0.f) {
+            // A plain surface with a left-handed uv: the map's y (v) is -t of the shading frame.
+            l.rotated = true;
+            l.macro = Frame(ctx.frame.s, -ctx.frame.t, ctx.frame.n);
             l.c.frame = l.macro;
         }
         return l;

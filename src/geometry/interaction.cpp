@@ -73,6 +73,7 @@ ShadingContext SurfaceInteraction::shading_context(bool two_sided) const {
     if (length_squared(n_footprint) > 0.f) {
         ctx.n_macro = n_footprint * ctx.side;
         ctx.dpdu_macro = length_squared(dpdu_footprint) > 0.f ? dpdu_footprint : dpdu;
+        ctx.dpdv_macro = length_squared(dpdv_footprint) > 0.f ? dpdv_footprint : dpdv;
     }
     ctx.dpdu = dpdu;
     ctx.dpdv = dpdv;

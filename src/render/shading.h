@@ -21,8 +21,10 @@ struct ShadingContext {
     /// The macro surface when the hit is on microgeometry (shell-mapped displacement): its
     /// unit normal (world; flipped with `side`, like frame.n) and a tangent along u (world,
     /// not normalised). Both zero elsewhere: then the shading frame is the macro frame.
-    /// Prefiltered LoD materials (paper 004) shade in the frame from_normal_tangent(n_macro, dpdu_macro).
-    Vec3 n_macro, dpdu_macro;
+    /// Prefiltered LoD materials (paper 004) shade in the frame (s along dpdu_macro, t along
+    /// dpdv_macro, n_macro), which is LEFT-handed where the uv parameterisation is (a
+    /// `rectangle`'s v runs down): the map's y axis must follow v, as the displacement does.
+    Vec3 n_macro, dpdu_macro, dpdv_macro;
     // Ray-differential footprint on the surface (zero when unknown, e.g. in `meso material`).
     Vec3 dpdx, dpdy;
     float dudx = 0, dudy = 0, dvdx = 0, dvdy = 0;
