@@ -55,6 +55,29 @@ public:
         return fresnel_conductor(dot(wi, h), m_eta, m_k) * m_specular->eval(ctx) * s;
     }
 
+    /// eval and pdf sharing the half vector, D and Λ(wo) (the multi-lobe BRDF of prefiltered
+    /// models calls this once per node): the same values as the two calls.
+    Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf_out) const override {
+        if (!pdf_out) return eval(ctx, wo, wi);
+        *pdf_out = 0.f;
+        if (!m_dist || !(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+        const Vec3 h = normalize(wo + wi);
+        const float D = m_dist->D(h);
+        if (D == 0.f) return Spectrum(0.f);
+        const float dwh = dot(wo, h), diw = dot(wi, h);
+        if (!(dwh > 0.f)) return Spectrum(0.f);  // both eval (G = 0) and pdf vanish
+        const double lo = m_dist->lambda(wo), li = m_dist->lambda(wi);
+        if (!std::isfinite(lo)) return Spectrum(0.f);
+        // pdf: visible normals G1(wo) D (wo.h) / wo.z / (4 wo.h), or D h.z / (4 wo.h)
+        double p = m_dist->sample_visible() ? double(D) / ((1.0 + lo) * 4.0 * wo.z) : double(D) * h.z / (4.0 * dwh);
+        *pdf_out = std::isfinite(p) && h.z > 0.f ? float(p) : 0.f;
+        if (!(diw > 0.f) || !std::isfinite(li)) return Spectrum(0.f);
+        const float G = float(1.0 / (1.0 + lo + li));
+        const float s = float(double(D) * G / (4.0 * wo.z));
+        if (!std::isfinite(s) || s <= 0.f) return Spectrum(0.f);
+        return fresnel_conductor(diw, m_eta, m_k) * m_specular->eval(ctx) * s;
+    }
+
     float pdf(const ShadingContext &, const Vec3 &wo, const Vec3 &wi) const override {
         if (!m_dist || !(wo.z > 0.f) || !(wi.z > 0.f)) return 0.f;
         Vec3 h = normalize(wo + wi);

@@ -25,6 +25,7 @@
 #include "render/microfacet.h"
 #include "sampling/chi2.h"
 #include "sampling/rng.h"
+#include "sampling/warp.h"
 #include "scene/properties.h"
 #include "scene/registry.h"
 
@@ -285,6 +286,25 @@ FluxAlbedo flux_albedo(const Material &m, const Vec3 &wo, int n, uint64_t seed) 
         a.se[c] = std::sqrt(std::max(0.0, s2[c] / n - a.mean[c] * a.mean[c]) / (n - 1));
     }
     return a;
+}
+
+// eval_pdf (one pass where a material overrides it) must give exactly what eval and pdf give.
+TEST_P(MaterialBattery, EvalPdfMatchesSeparateCalls) {
+    const Case &c = GetParam();
+    auto mat = make_material(c.json);
+    PCG32 rng(17);
+    for (int i = 0; i < 400; ++i) {
+        const Vec3 wo = square_to_uniform_sphere(Vec2(rng.next_float(), rng.next_float()));
+        const Vec3 wi = square_to_uniform_sphere(Vec2(rng.next_float(), rng.next_float()));
+        float p = -1.f;
+        const Spectrum f = mat->eval_pdf(kCtx, wo, wi, &p);
+        const Spectrum f2 = mat->eval(kCtx, wo, wi);
+        const float p2 = mat->pdf(kCtx, wo, wi);
+        for (int ch = 0; ch < 3; ++ch) EXPECT_NEAR(f[ch], f2[ch], 1e-5f * std::max(1.f, std::abs(f2[ch]))) << c.name;
+        EXPECT_NEAR(p, p2, 1e-5f * std::max(1.f, p2)) << c.name;
+        const Spectrum f3 = mat->eval_pdf(kCtx, wo, wi, nullptr);
+        for (int ch = 0; ch < 3; ++ch) EXPECT_EQ(f3[ch], f2[ch]) << c.name;
+    }
 }
 
 TEST_P(MaterialBattery, AlbedoAtMostOne) {
