@@ -137,11 +137,15 @@ TEST(MultiLobeBrdf, Chi2SamplingMatchesPdf) {
     const Case cases[] = {{"diffuse_2", kDiffuse, two_lobes()},
                           {"diffuse_6", kDiffuse, six_lobes()},
                           {"conductor_2", kConductor, two_lobes()},
-                          {"conductor_6", kConductor, six_lobes()}};
+                          {"conductor_6", kConductor, six_lobes()},
+                          {"visible_conductor_6", kConductor, six_lobes()},
+                          {"visible_diffuse_6", kDiffuse, six_lobes()}};
     const double thetas[] = {0.0, 40.0, 75.0};
     const int tests = int(std::size(cases) * std::size(thetas));
     for (const Case &c : cases) {
-        MultiLobeBrdf m(make_material(c.base), c.ndf);
+        QuadratureOptions q;
+        q.projected_area = std::string(c.name).rfind("visible", 0) == 0;  // the --flow visible form
+        MultiLobeBrdf m(make_material(c.base), c.ndf, q);
         for (double th : thetas) {
             Chi2Options opt;
             opt.samples = 100000;

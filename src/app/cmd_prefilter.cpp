@@ -44,8 +44,8 @@ struct PrefilterOptions {
     double height_scale = 1.0, tile_size = 1.0;
     int M = 4, N = 15, lobes = 6, samples_per_cell = 2, paths = 64, low_paths = 64, low_nodes = 4, max_rounds = 8;
     int quad_polar = 3, quad_azimuth = 4;  // 12 nodes per lobe: render cost of f'_low (see README)
-    std::string interreflections = "on";
-    double target_error = 0, epsilon = 1e-3;
+    std::string interreflections = "on", flow = "eq5";
+    double target_error = 0, epsilon = 1e-2;
     uint64_t seed = 1;
     bool quiet = false;
 };
@@ -164,7 +164,8 @@ int run_prefilter(const PrefilterOptions &o) {
     model.tile_size = o.tile_size;
     model.base = base_json;
     model.lobes = o.lobes;
-    model.quadrature = {o.quad_polar, o.quad_azimuth};
+    if (o.flow != "visible" && o.flow != "eq5") throw MesoError(fmt::format("--flow {}: expected visible or eq5", o.flow));
+    model.quadrature = {o.quad_polar, o.quad_azimuth, o.flow == "visible"};
     model.manifest["meso_version"] = MESO_VERSION;
     model.manifest["input"] = input;
     model.manifest["parameters"] = {{"scales", scales}, {"M", o.M}, {"N", o.N}, {"lobes", o.lobes},
@@ -173,6 +174,7 @@ int run_prefilter(const PrefilterOptions &o) {
                                     {"max_rounds", o.max_rounds}, {"epsilon", o.epsilon}, {"seed", o.seed},
                                     {"ndf_samples_per_cell", o.samples_per_cell},
                                     {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
+                                    {"flow_projected_area", o.flow == "visible"},
                                     {"lsq_w", 0.01}};
 
     // Cell-space heightfield of the original (Euclidean cells, see effective_brdf.h).
@@ -308,6 +310,10 @@ SubcommandRegistrar reg_prefilter{
              ->check(CLI::Range(1, 64));
          app.add_option("--quadrature-azimuth", o->quad_azimuth, "f'_low quadrature: azimuthal nodes")->capture_default_str()
              ->check(CLI::Range(1, 256));
+         app.add_option("--flow", o->flow,
+                        "f'_low: visible (facets weighted by their projected area towards the viewer) or eq5 "
+                        "(paper 004 eq. 5 as printed)")
+             ->capture_default_str();
          app.add_option("--epsilon", o->epsilon, "eq. 12's epsilon, relative to the mean denominator")->capture_default_str();
          app.add_option("--seed", o->seed, "random seed of the estimators")->capture_default_str();
          app.add_option("-o,--output", o->output, "model directory to write");

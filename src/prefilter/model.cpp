@@ -223,6 +223,7 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
     m.lobes = need(par, "lobes", where + " parameters").get<int>();
     m.quadrature.polar = par.value("quadrature_polar", 4);
     m.quadrature.azimuth = par.value("quadrature_azimuth", 6);
+    m.quadrature.projected_area = par.value("flow_projected_area", false);
     if (m.map_width < 1 || m.map_height < 1 || !(m.tile_size > 0) || m.lobes < 1 || m.lobes > 64)
         throw MesoError(fmt::format("{}: invalid map size, tile_size or lobes", where));
     for (const auto &lj : need(j, "levels", where)) {

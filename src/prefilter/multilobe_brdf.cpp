@@ -75,7 +75,7 @@ MultiLobeBrdf::MultiLobeBrdf(std::shared_ptr<const Material> base, const PatchNd
 double MultiLobeBrdf::selection_total(const Vec3 &wo) const {
     double total = 0.0;
     for (const NdfNode &k : m_nodes)
-        if (k.frame.to_local(wo).z > 0.f) total += k.weight;  // the test of pdf()
+        if (const float z = k.frame.to_local(wo).z; z > 0.f) total += weight(k, z, wo.z);  // the test of pdf()
     return total;
 }
 
@@ -88,7 +88,8 @@ Spectrum MultiLobeBrdf::eval(const ShadingContext &ctx, const Vec3 &wo, const Ve
         const Vec3 li = k.frame.to_local(wi);
         if (!(li.z > 0.f)) continue;
         const Spectrum f = m_base->eval(ctx, lo, li);  // f · <ω_k, ωi>
-        r += k.weight * f.r, g += k.weight * f.g, b += k.weight * f.b;
+        const double w = weight(k, lo.z, wo.z);
+        r += w * f.r, g += w * f.g, b += w * f.b;
     }
     return Spectrum(float(r), float(g), float(b));
 }
@@ -105,8 +106,9 @@ void MultiLobeBrdf::eval_batch(const ShadingContext &ctx, const Vec3 &wo, const 
                 const Vec3 li = k.frame.to_local(wi[b]);
                 if (!(li.z > 0.f)) continue;
                 const Spectrum f = m_base->eval(ctx, lo, li);
+                const double w = weight(k, lo.z, wo.z);
                 double *a = &acc[size_t(b) * 3];
-                a[0] += k.weight * f.r, a[1] += k.weight * f.g, a[2] += k.weight * f.b;
+                a[0] += w * f.r, a[1] += w * f.g, a[2] += w * f.b;
             }
         }
     }
@@ -121,13 +123,14 @@ Spectrum MultiLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, cons
     for (const NdfNode &k : m_nodes) {
         const Vec3 lo = k.frame.to_local(wo);
         if (!(lo.z > 0.f)) continue;
-        total += k.weight;
+        const double w = weight(k, lo.z, wo.z);
+        total += w;
         const Vec3 li = k.frame.to_local(wi);
         if (!(li.z > 0.f)) continue;
         float p = 0.f;
         const Spectrum f = m_base->eval_pdf(ctx, lo, li, &p);
-        r += k.weight * f.r, g += k.weight * f.g, b += k.weight * f.b;
-        sum += k.weight * double(p);
+        r += w * f.r, g += w * f.g, b += w * f.b;
+        sum += w * double(p);
     }
     *pdf_out = total > 0.0 ? float(sum / total) : 0.f;
     return Spectrum(float(r), float(g), float(b));
@@ -139,10 +142,11 @@ float MultiLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &
     for (const NdfNode &k : m_nodes) {
         const Vec3 lo = k.frame.to_local(wo);
         if (!(lo.z > 0.f)) continue;  // the same test as selection_total (dot(wo, n) == lo.z)
-        total += k.weight;
+        const double w = weight(k, lo.z, wo.z);
+        total += w;
         const Vec3 li = k.frame.to_local(wi);
         if (!(li.z > 0.f)) continue;
-        sum += k.weight * double(m_base->pdf(ctx, lo, li));
+        sum += w * double(m_base->pdf(ctx, lo, li));
     }
     return total > 0.0 ? float(sum / total) : 0.f;
 }
@@ -152,22 +156,28 @@ bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lo
     // Node choice with probability c_k [F_k wo .z > 0] / Σ: one pass records the eligible
     // nodes (the test of pdf()), then the choice scans the recorded weights.
     thread_local std::vector<uint32_t> eligible;
+    thread_local std::vector<double> ew;
     eligible.clear();
+    ew.clear();
     double total = 0.0;
     for (size_t q = 0; q < m_nodes.size(); ++q)
-        if (m_nodes[q].frame.to_local(wo).z > 0.f) eligible.push_back(uint32_t(q)), total += m_nodes[q].weight;
+        if (const float z = m_nodes[q].frame.to_local(wo).z; z > 0.f) {
+            eligible.push_back(uint32_t(q));
+            ew.push_back(weight(m_nodes[q], z, wo.z));
+            total += ew.back();
+        }
     if (!(total > 0.0)) return false;
     const double target = double(u_lobe) * total;
     const NdfNode *chosen = nullptr;
     double cum = 0.0, u_rescaled = 0.0;
-    for (uint32_t q : eligible) {
-        const NdfNode &k = m_nodes[q];
-        chosen = &k;
-        if (target < cum + k.weight) {
-            u_rescaled = (target - cum) / k.weight;
+    for (size_t e = 0; e < eligible.size(); ++e) {
+        const double w = ew[e];
+        chosen = &m_nodes[eligible[e]];
+        if (target < cum + w) {
+            u_rescaled = (target - cum) / w;
             break;
         }
-        cum += k.weight;
+        cum += w;
         u_rescaled = 1.0;  // rounding: falls through to the last eligible node
     }
     if (!chosen) return false;

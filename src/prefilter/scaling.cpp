@@ -88,6 +88,7 @@ void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
     LineBuf buf(B);
     std::vector<Spectrum> fl(static_cast<size_t>(B));
     std::vector<size_t> vis;
+    std::vector<double> vw;
     const int J = m_opt.low_nodes;
     const Material &base_low = m_low_mat.base();
     const size_t base_idx = task * size_t(B) * 3;
@@ -226,9 +227,10 @@ void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
                 // stratified in the CDF of c_k over the nodes that face ωo (the others add 0).
                 const auto &nodes = fl_patch.nodes();
                 vis.clear();
+                vw.clear();
                 double total = 0;
                 for (size_t q = 0; q < nodes.size(); ++q)
-                    if (nodes[q].frame.to_local(wo).z > 0.f) vis.push_back(q), total += nodes[q].weight;
+                    if (const double w = fl_patch.node_weight(nodes[q], wo); w > 0) vis.push_back(q), vw.push_back(w), total += w;
                 std::fill(fl.begin(), fl.end(), Spectrum(0.f));
                 if (total > 0) {
                     const double xi = rng.next_double();
@@ -236,7 +238,7 @@ void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
                     double cum = 0;
                     for (int j = 0; j < J; ++j) {
                         const double target = (double(j) + xi) / J * total;
-                        while (q + 1 < vis.size() && cum + nodes[vis[q]].weight <= target) cum += nodes[vis[q]].weight, ++q;
+                        while (q + 1 < vis.size() && cum + vw[q] <= target) cum += vw[q], ++q;
                         const Frame &F = nodes[vis[q]].frame;
                         const Vec3 lo = F.to_local(wo);
                         const float scale = float(total / J);
@@ -355,18 +357,35 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
         tab.T = Image(M, M, 3);
         tab.S = Image(N * N, N * N, 3);
         std::vector<double> T(size_t(P) * 3, 1.0), S(BB * 3, 1.0);
+        // Raw (before T's normalisation to mean 1) global ratio, cap and ε per channel.
+        double S_global[3] = {1, 1, 1}, S_cap[3] = {0, 0, 0}, eps_bin[3] = {0, 0, 0}, T_mean[3] = {1, 1, 1};
         for (int c = 0; c < 3; ++c) {
-            double dtot = 0;
+            double dtot = 0, ntot = 0;
             for (int p = 0; p < P; ++p)
-                for (size_t j = 0; j < BB; ++j) dtot += den[at(p, j, c)];
-            const double eps_b = m_opt.epsilon * dtot / double(BB);       // per bin pair, summed over patches
-            const double eps_p = m_opt.epsilon * dtot / double(P);        // per patch, summed over bin pairs
+                for (size_t j = 0; j < BB; ++j) dtot += den[at(p, j, c)], ntot += num[at(p, j, c)];
+            // Regularisation (the ε of eq. 12, relative): a bin pair whose denominator is small
+            // against eps_b is pulled towards the global ratio S_g = Σ num / Σ den, and S is
+            // capped at the largest value of the bins whose denominator is reliable (≥ 10% of
+            // the mean): where f'_low reflects (almost) nothing, S cannot restore the
+            // original's light anyway, and an unbounded ratio would leak into the neighbouring
+            // bins through the interpolation (e.g. grazing ωo where eq. 5 culls a facet family).
+            const double S_g = dtot > 0 && ntot > 0 ? ntot / dtot : 1.0;
+            const double eps_b = m_opt.epsilon * dtot / double(BB);  // per bin pair, summed over patches
+            // A patch sums over every bin pair: its total is never near zero unless the patch is
+            // black; ε there only guards the division (a relative ε would bias T towards 1).
+            const double eps_p = 1e-9 * dtot / double(P) + 1e-300;
+            S_global[c] = S_g, eps_bin[c] = eps_b;
             for (int it = 0; it < 30; ++it) {
+                double cap = 0;
                 for (size_t j = 0; j < BB; ++j) {
                     double a = 0, d = 0;
                     for (int p = 0; p < P; ++p) a += num[at(p, j, c)], d += T[size_t(p) * 3 + c] * den[at(p, j, c)];
-                    S[j * 3 + c] = (a + eps_b) / (d + eps_b);
+                    S[j * 3 + c] = (a + eps_b * S_g) / (d + eps_b);
+                    if (d >= 0.1 * dtot / double(BB)) cap = std::max(cap, S[j * 3 + c]);
                 }
+                if (cap > 0)
+                    for (size_t j = 0; j < BB; ++j) S[j * 3 + c] = std::min(S[j * 3 + c], cap);
+                S_cap[c] = cap;
                 double change = 0;
                 for (int p = 0; p < P; ++p) {
                     double a = 0, d = 0;
@@ -382,6 +401,7 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
             if (mean > 0) {
                 for (int p = 0; p < P; ++p) T[size_t(p) * 3 + c] /= mean;
                 for (size_t j = 0; j < BB; ++j) S[j * 3 + c] *= mean;
+                T_mean[c] = mean;
             }
         }
         for (int p = 0; p < P; ++p)
@@ -424,11 +444,10 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
             }
             if (a > 0 && d > 0) o.t_max = std::max(o.t_max, std::sqrt(va / (a * a) + vd / (d * d)));
         }
-        // Rank-1 check (green), as paper 004 Fig. 6: the sampled R~ = (num + e) / (den + e) per
-        // patch and bin pair over the bin pairs whose centres are both at θ <= 75° (the
-        // paper's exclusion, for this diagnostic only: near-empty grazing cells of a sparse
-        // sample are pure noise in a per-cell ratio), e = 1% of the bin pair's mean denominator
-        // over patches; its SVD against this factorisation and eq. 22-24's.
+        // Rank-1 check (green), as paper 004 Fig. 6: the sampled R~ per patch and bin pair,
+        // regularised as S is (pulled towards S_g by eps_b / P, capped at S's cap), over the bin
+        // pairs whose centres are both at θ <= 75° (the paper's exclusion, for this diagnostic
+        // only); its SVD against this factorisation and eq. 22-24's.
         std::vector<size_t> cols;
         for (size_t j = 0; j < BB; ++j) {
             const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
@@ -443,10 +462,12 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
         Eigen::MatrixXd A(P, Eigen::Index(cols.size()));
         for (size_t c = 0; c < cols.size(); ++c) {
             const size_t j = cols[c];
-            double dm = 0;
-            for (int p = 0; p < P; ++p) dm += den[at(p, j, 1)] / P;
-            const double e = 0.01 * dm + 1e-30;
-            for (int p = 0; p < P; ++p) A(p, Eigen::Index(c)) = (num[at(p, j, 1)] + e) / (den[at(p, j, 1)] + e);
+            const double e = eps_bin[1] / P;
+            for (int p = 0; p < P; ++p) {
+                double r = (num[at(p, j, 1)] + e * S_global[1]) / (den[at(p, j, 1)] + e);
+                if (S_cap[1] > 0) r = std::min(r, S_cap[1] * T[size_t(p) * 3 + 1] * T_mean[1]);
+                A(p, Eigen::Index(c)) = r;
+            }
         }
         const Eigen::MatrixXd G = A * A.transpose();
         Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(G);

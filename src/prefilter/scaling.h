@@ -71,7 +71,7 @@ struct ScalingOptions {
     int low_nodes = 4;
     int max_bounces = kAllBounces; ///< path vertices on G_orig (with interreflections)
     int roulette_start = 4;        ///< Russian roulette from this vertex (effective_brdf.h)
-    double epsilon = 1e-3;         ///< ε of eq. 12, relative to the mean denominator
+    double epsilon = 1e-2;         ///< ε of eq. 12, relative to the mean denominator (see finish())
     uint64_t seed = 1;
     /// Called with the fraction of (patch, ωo bin) tasks of the current round done (any thread,
     /// serialised by the caller's responsibility: it is called under a mutex here).
