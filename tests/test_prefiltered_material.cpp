@@ -6,6 +6,7 @@
 // concentric map's inverse, χ² of the sampler (plain and in a macro frame tilted against the
 // shading frame), the macro normal of the ShadingContext, bad input, and a rendered scene.
 #include <gtest/gtest.h>
+#include "cli_capture.h"
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -125,14 +126,7 @@ void expect_spectrum_near(Spectrum a, Spectrum b, double rel, const std::string 
         EXPECT_NEAR(a[c], b[c], rel * std::max(std::abs(a[c]), std::abs(b[c])) + 1e-7) << what << " channel " << c;
 }
 
-std::string error_of(const std::function<void()> &f) {
-    try {
-        f();
-    } catch (const MesoError &e) {
-        return e.what();
-    }
-    return "(no error)";
-}
+std::string error_of(const std::function<void()> &f) { return meso::test::meso_error_of(f); }
 
 }  // namespace
 

@@ -142,19 +142,28 @@ void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
 
     size_t orig_lines = 0, low_lines = 0, vertices = 0, rejected = 0, leaked = 0;
     uint32_t acc_orig = 0, acc_low = 0;
+    // Patch P of this task in a field's cell space.
+    auto patch_of = [&](const Heightfield &hf) {
+        const double cw = double(hf.width()) / M, ch = double(hf.height()) / M;
+        return PatchRegion{pa * cw, pb * ch, (pa + 1) * cw, (pb + 1) * ch};
+    };
+    // Line k of K on field hf: its directions (same on both fields) and first vertex in P.
+    auto start_line = [&](const Heightfield &hf, const PatchRegion &R, int k, int K, bool macro, Vec3 &wo,
+                          Vertex &v, size_t &lines) {
+        PCG32 lr = line_rng(k);
+        draw_directions(lr, wo);
+        ++lines;
+        return shoot(lr, hf, R, wo, k, K, macro, v, rejected, leaked);
+    };
     // --- the original microgeometry: paths, next-event towards every ωi bin -----------------
     const auto t0 = Clock::now();
     {
-        const double cw = double(m_orig.width()) / M, ch = double(m_orig.height()) / M;
-        const PatchRegion R{pa * cw, pb * ch, (pa + 1) * cw, (pb + 1) * ch};
+        const PatchRegion R = patch_of(m_orig);
         const int K = m_opt.orig_paths;
         for (int k = 0; k < K; ++k) {
             Vec3 wo;
-            PCG32 lr = line_rng(k);
-            draw_directions(lr, wo);
-            ++orig_lines;
             Vertex v;
-            if (!shoot(lr, m_orig, R, wo, k, K, false, v, rejected, leaked)) continue;
+            if (!start_line(m_orig, R, k, K, false, wo, v, orig_lines)) continue;
             ++acc_orig;
             buf.clear();
             Spectrum throughput(1.f);
@@ -206,16 +215,12 @@ void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
     // --- the downsampled model: one bounce, f'_low in the macro frame -----------------------
     const auto t1 = Clock::now();
     {
-        const double cw = double(m_low.width()) / M, ch = double(m_low.height()) / M;
-        const PatchRegion R{pa * cw, pb * ch, (pa + 1) * cw, (pb + 1) * ch};
+        const PatchRegion R = patch_of(m_low);
         const int K = m_opt.low_paths;
         for (int k = 0; k < K; ++k) {
             Vec3 wo;
-            PCG32 lr = line_rng(k);
-            draw_directions(lr, wo);
-            ++low_lines;
             Vertex v;
-            if (!shoot(lr, m_low, R, wo, k, K, true, v, rejected, leaked)) continue;
+            if (!start_line(m_low, R, k, K, true, wo, v, low_lines)) continue;
             ++acc_low;
             buf.clear();
             const Vec3 org = spawn_origin(v);
