@@ -382,3 +382,21 @@ TEST(MultiLobeBrdf, EvalTiming) {
                     m.to_string().c_str(), m.nodes().size(), ns(t0, t1), ns(t1, t2), ns(t2, t3), sink);
     }
 }
+
+// Lobes with κ >= kCollapseKappa are one node at μ: continuous with the full rule just below.
+TEST(MultiLobeBrdf, NarrowLobeCollapseIsContinuous) {
+    auto base = make_material(R"({"type":"conductor","material":"Au","alpha":0.1})");
+    const Vec3 mu = normalize(Vec3(0.3f, -0.2f, 1.f));
+    MultiLobeBrdf below(base, make_ndf({{mu, 0.99 * kCollapseKappa, 1.0}}));
+    MultiLobeBrdf above(base, make_ndf({{mu, 1.01 * kCollapseKappa, 1.0}}));
+    EXPECT_EQ(above.nodes().size(), 1u);
+    EXPECT_GT(below.nodes().size(), 1u);
+    EXPECT_NEAR(above.projected_area(), 1.0, 1e-9);
+    double worst = 0;
+    for (auto [wo, wi] : direction_pairs()) {
+        const double a = above.eval(kCtx, wo, wi).g, b = below.eval(kCtx, wo, wi).g;
+        worst = std::max(worst, std::abs(a - b) / std::max(b, 1e-3));
+    }
+    std::printf("collapse at kappa %.0e (alpha 0.1): max rel. change %.2e\n", kCollapseKappa, worst);
+    EXPECT_LT(worst, 5e-3);
+}

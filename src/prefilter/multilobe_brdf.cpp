@@ -43,6 +43,21 @@ MultiLobeBrdf::MultiLobeBrdf(std::shared_ptr<const Material> base, const PatchNd
         if (l.weight == 0.0) continue;
         const double kappa = std::min(l.kappa, vmf::kMaxKappa);
         const Vec3 mu(float(mx / ml), float(my / ml), float(mz / ml));
+        if (kappa >= kCollapseKappa) {
+            // A (near-)delta lobe, e.g. a planar facet family: every node of the rule would sit
+            // within ~1/sqrt(κ) <= 3e-3 rad of μ; one node at μ carries the lobe (its mass below
+            // the horizon is 0 unless μ is within that angle of it). Its weight keeps the lobe's
+            // projected area (eq. 3): c μ_z = amplitude a_j P(μ, κ).
+            if (mu.z > 0.f) {
+                const double c = ndf.amplitude * l.weight * vmf_projected_area(mu, kappa) / double(mu.z);
+                if (c > 0.0) {
+                    m_nodes.push_back({Frame(mu), c, int(j)});
+                    m_total += c;
+                    m_projected += c * double(mu.z);
+                }
+            }
+            continue;
+        }
         Vec3 s, t;
         coordinate_system(mu, s, t);
         for (int a = 0; a < opt.polar; ++a) {
