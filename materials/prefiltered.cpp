@@ -9,13 +9,15 @@
 // interreflections, §5). As everywhere in meso, eval returns f · cos θi (here the cosine to the
 // macro normal, which f'_low already includes).
 //
-// Frames. The model lives in the MACRO tangent frame (z = the undisplaced surface's normal, x
-// along u): on microgeometry (a shell-mapped LoD level, h_low) the ShadingContext carries the
-// macro normal and u tangent (n_macro, dpdu_macro) and directions are rotated shading-local →
-// world → macro; elsewhere (a plain mesh, `meso material`) the shading frame is the macro
-// frame. The material is reflection-only in BOTH frames: eval, pdf and sample give 0 / false
-// unless wo and wi are above the shading horizon and the macro horizon. The rotation is
-// orthonormal, so solid-angle pdfs are unchanged.
+// Frames. The model lives in the MACRO tangent frame of the map (z = the undisplaced surface's
+// normal, x along u, y along v — left-handed where the uv parameterisation is, e.g. a
+// `rectangle`, whose v runs down): on microgeometry (a shell-mapped LoD level, h_low) the
+// ShadingContext carries the macro normal and tangents (n_macro, dpdu_macro, dpdv_macro) and
+// directions are rotated shading-local → world → macro; elsewhere (a plain mesh, `meso
+// material`) the shading frame is the macro frame, its t flipped when dp/dv points against it.
+// The material is reflection-only in BOTH frames: eval, pdf and sample give 0 / false unless wo
+// and wi are above the shading horizon and the macro horizon. The change of frame is
+// orthogonal, so solid-angle pdfs are unchanged.
 //
 // Map position. x = frac(uv · tiling) ∈ [0, 1)² is the position in the map's tile: T(x) is
 // bilinear between its M x M bin centres (periodic), and the patch NDF is patch
