@@ -285,7 +285,7 @@ TEST(PrefilteredModel, WhiteFurnace) {
     }
     // Paper 004 reports 0.988 (twill) and 0.999 (noise). Here (N = 15, 256 lines per wo bin):
     // 0.985, 0.979, 0.981, 1.006 at 0, 30, 60, 75 degrees (mean 0.988); the spread is the noise
-    // and the bin interpolation of S. (--flow visible: 0.979, 0.970, 0.977, 0.890.)
+    // and the bin interpolation of S.
     EXPECT_GE(mean_ir, 0.98);
     EXPECT_GE(worst_ir, 0.97);
     EXPECT_LT(best_single, worst_ir);  // without interreflections energy is lost at every angle

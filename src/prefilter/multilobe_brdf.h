@@ -83,9 +83,10 @@ struct QuadratureOptions {
     /// it is continuous and a white Lambertian base reflects 1 + (facets facing away) ≈ 1 at
     /// every ωo. But R = f_eff / f_eff(f'_low) then falls steeply towards grazing ωo (the
     /// 1 / cos θo of the projected area is no longer cancelled by masking), which the binned S
-    /// resolves worse: the white furnace of PrefilteredModel.WhiteFurnace gives a mean albedo
-    /// of 0.954 (0.890 at 75°) with it against 0.988 with eq. 5. meso prefilter therefore
-    /// defaults to eq. 5 (--flow eq5) and offers this as --flow visible.
+    /// resolves worse: in the white furnace of PrefilteredModel.WhiteFurnace (run on a model
+    /// made with --flow visible) the albedo fell furthest from 1 at 75°, where eq. 5 stays
+    /// within 1%. meso prefilter therefore defaults to eq. 5 (--flow eq5) and offers this as
+    /// --flow visible.
     bool projected_area = false;
 };
 
