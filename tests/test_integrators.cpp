@@ -151,6 +151,9 @@ TEST(Render, TimeBudgetRendersWholePasses) {
     EXPECT_GE(r.passes, 1);
     EXPECT_GT(r.spp, 0);
     EXPECT_LT(r.wall_s, 1.5);  // stops within about one pass of the budget
+    // Timed passes are small (>= 8k samples) and the stop is predicted from the last pass, so an
+    // equal-time comparison gets (nearly) all of its budget: here passes take milliseconds.
+    EXPECT_GT(r.wall_s, 0.4);
     EXPECT_GT(r.rays, uint64_t(r.spp) * 24 * 24 / 2);
 }
 

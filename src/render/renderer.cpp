@@ -56,7 +56,10 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
 
     // Passes of at least ~64k samples keep the per-pass overhead negligible; a pass is a
     // contiguous range of sample indices, so passes compose to exactly the same samples.
-    const int spp_per_pass = std::max(1, int(std::ceil(65536.0 / (double(W) * H))));
+    // Under a time budget, passes are smaller (>= 8k samples, 1 spp from 90x90 pixels up) so
+    // that the budget is used to within a few per cent even for small images and short
+    // budgets (equal-time comparisons, `meso bench`).
+    const int spp_per_pass = std::max(1, int(std::ceil((timed ? 8192.0 : 65536.0) / (double(W) * H))));
     // pbrt-v4: scale camera differentials by max(1/8, 1/sqrt(spp)) (footprint of one sample).
     const float diff_scale = std::max(0.125f, 1.f / std::sqrt(float(timed ? std::max(total_spp, 1) : total_spp)));
 
@@ -76,16 +79,18 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
 
     int spp_done = 0, passes = 0;
+    double last_pass_s = 0.0, pass_start = 0.0;
     const int tiles_x = (W + TileSize - 1) / TileSize, tiles_y = (H + TileSize - 1) / TileSize;
     for (;;) {
         int n = timed ? spp_per_pass : std::min(spp_per_pass, total_spp - spp_done);
         if (n <= 0) break;
         if (timed && passes > 0) {
-            // Start a pass only if it is expected to finish within the budget.
-            double per_pass = elapsed() / passes;
-            if (elapsed() + per_pass > opts.time_budget_s) break;
+            // Start a pass only if it is expected to finish within the budget, predicted from
+            // the last pass (the first one also pays for warm-up: caches, lazy page faults).
+            if (elapsed() + last_pass_s > opts.time_budget_s) break;
         }
         const int first = spp_done;
+        pass_start = elapsed();
         tbb::parallel_for(tbb::blocked_range2d<int>(0, tiles_y, 1, 0, tiles_x, 1), [&](const tbb::blocked_range2d<int> &r) {
             std::unique_ptr<Sampler> sampler = scene.sampler->clone();
             if (opts.seed) sampler->set_seed(*opts.seed);
@@ -120,6 +125,7 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
         spp_done += n;
         ++passes;
         double t = elapsed();
+        last_pass_s = t - pass_start;
         if (csv) {
             ImageMetrics m = compute_metrics(film.resolve(spp_done), *opts.reference);
             *csv << fmt::format("{},{:.6f},{},{:.9g},{:.9g}\n", passes, t, spp_done, m.mse, m.relmse);
