@@ -28,6 +28,17 @@
 // f'_low's pdf (T·S is not importance-sampled) and weight = eval / pdf at the sampled
 // direction, computed from eval and pdf. Not reciprocal (f'_low is not).
 //
+// Estimator. "quadrature" (default): f'_low is the full node sum everywhere (N ≈ 72 base
+// evaluations per eval_pdf; sample adds the node choice and, in a rotated macro frame, a second
+// full pass). "stochastic": where the integrator hands the material a uniform
+// (ShadingContext::u_eval >= 0: the path tracer, for every vertex), eval_pdf returns the
+// one-node estimate T·S·Σ(ωo) g_k(ωo, ωi) of a node k drawn with u_eval by P_k(ωo), with the
+// node's pdf_k(ωi), and sample draws the same directions as before but returns pdf_k and
+// weight T·S·Σ g_k / pdf_k (prefilter/multilobe_brdf.h, "Stochastic one-node estimator": unbiased,
+// also inside the path tracer's MIS, which pairs exactly these pdfs). 1 base evaluation
+// instead of N, at the price of more variance per sample. eval and pdf stay exact, and so does
+// everything without u_eval (`meso material`, the χ² tests): there sample's pdf = pdf().
+//
 // Base material. By default, the one the model was made with (manifest "input"."base", a
 // meso material object); relative file names inside it (textures) resolve against the
 // manifest's "input"."base_dir" (where `meso prefilter` read the --base file) when that
@@ -47,6 +58,8 @@
 //                                        only, from the ir tables when the level has them, else single)
 //   tiling   float | [u, v]    1         repeats of the map over uv [0, 1] (as the displacement's tiling)
 //   base     material          manifest  overrides the model's base material
+//   estimator string           quadrature "quadrature" (f'_low's full node sum) | "stochastic" (one node per
+//                                        evaluation where the integrator supplies u_eval; see above)
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -145,6 +158,7 @@ public:
         std::shared_ptr<const SvMultiLobe> f;
         const ScalingTables *tables = nullptr;  ///< null: no scaling
         bool use_T = false, use_S = false;
+        bool stochastic = false;  ///< estimator "stochastic"
         float tu = 1.f, tv = 1.f;
         std::string desc;
     };
@@ -176,7 +190,9 @@ public:
         const Local l = local(ctx);
         const Vec3 mo = l.to_macro(ctx, wo), mi = l.to_macro(ctx, wi);
         if (!(mo.z > 0.f) || !(mi.z > 0.f)) return Spectrum(0.f);
-        Spectrum v = m.f->patch(l.c.uv).eval_pdf(l.c, mo, mi, pdf);
+        const MultiLobeBrdf &f = m.f->patch(l.c.uv);
+        Spectrum v = stochastic(ctx) ? f.eval_pdf_stochastic(l.c, mo, mi, double(ctx.u_eval), pdf)
+                                     : f.eval_pdf(l.c, mo, mi, pdf);
         return v.is_black() ? v : scaled(l, v, mo, mi);
     }
 
@@ -195,7 +211,10 @@ public:
         if (!(mo.z > 0.f)) return false;
         const MultiLobeBrdf &f = m.f->patch(l.c.uv);
         BSDFSample bs;
-        if (!f.sample(l.c, mo, u_lobe, u, bs)) return false;
+        const bool one_node = stochastic(ctx);
+        MultiLobeBrdf::NodePick pick;
+        if (!(one_node ? f.sample_stochastic(l.c, mo, u_lobe, u, bs, &pick) : f.sample(l.c, mo, u_lobe, u, bs)))
+            return false;
         // Back to the shading frame; the pdf and eval are then taken at the direction the
         // integrator will see (after the rotation's round-off), so that sample, pdf and eval
         // agree exactly.
@@ -203,10 +222,11 @@ public:
         if (!(wi.z > 0.f)) return false;
         const Vec3 mi = l.to_macro(ctx, wi);
         if (!(mi.z > 0.f)) return false;
-        // Not rotated: bs is exact at mi (weight = f'_low / pdf); rotated: one eval_pdf pass.
+        // Not rotated: bs is exact at mi (weight = f'_low / pdf, or the one-node estimate / pdf_k);
+        // rotated: one eval_pdf pass, or node k's value and pdf at mi.
         float p = bs.pdf;
         Spectrum e = bs.weight * bs.pdf;
-        if (l.rotated) e = f.eval_pdf(l.c, mo, mi, &p);
+        if (l.rotated) e = one_node ? f.eval_pdf_node(l.c, pick, mo, mi, &p) : f.eval_pdf(l.c, mo, mi, &p);
         if (!(p > 0.f) || !std::isfinite(p)) return false;
         if (!e.is_black()) e = scaled(l, e, mo, mi);
         out.wi = wi;
@@ -218,6 +238,9 @@ public:
     }
 
 private:
+    /// Whether eval_pdf and sample use the one-node estimator at this shading point.
+    bool stochastic(const ShadingContext &ctx) const { return m.stochastic && ctx.u_eval >= 0.f; }
+
     /// The context f'_low sees (uv = map position x) and the macro frame.
     struct Local {
         ShadingContext c;
@@ -316,6 +339,10 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
         c.use_T = s != Scaling::SOnly;
         c.use_S = s != Scaling::TOnly;
     }
+    const std::string estimator = p.get_string("estimator", "quadrature");
+    if (estimator == "stochastic") c.stochastic = true;
+    else if (estimator != "quadrature")
+        p.fail("estimator", fmt::format("expected \"quadrature\" or \"stochastic\", got \"{}\"", estimator));
     if (p.has("tiling")) {
         std::vector<float> t;
         if (p.raw("tiling").is_number()) t.assign(2, p.get_float("tiling"));
@@ -340,8 +367,9 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
     } catch (const MesoError &e) {
         p.fail(own_base ? "model" : "base", e.what());
     }
-    c.desc = fmt::format("prefiltered[{} level x{} ({}x{} patches), scaling {}, tiling {}x{}, base {}]", dir, factor,
-                         c.level->width(), c.level->height(), scaling, c.tu, c.tv, base->to_string());
+    c.desc = fmt::format("prefiltered[{} level x{} ({}x{} patches), scaling {}, estimator {}, tiling {}x{}, base {}]",
+                         dir, factor, c.level->width(), c.level->height(), scaling, estimator, c.tu, c.tv,
+                         base->to_string());
     return std::make_shared<Prefiltered>(std::move(c));
 }
 

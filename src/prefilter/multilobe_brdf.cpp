@@ -3,6 +3,7 @@
 #include "prefilter/multilobe_brdf.h"
 #include <fmt/format.h>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include "core/error.h"
 #include "core/quadrature.h"
@@ -12,11 +13,25 @@ namespace meso::prefilter {
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
+
+uint64_t next_instance_id() {
+    static std::atomic<uint64_t> counter{1};
+    return counter.fetch_add(1, std::memory_order_relaxed);
+}
+
+/// pick_node's per-thread record of the nodes visible from the last (instance, wo).
+struct PickCache {
+    uint64_t owner = 0;  ///< MultiLobeBrdf::m_id; 0: empty
+    Vec3 wo;
+    double total = 0.0;
+    std::vector<uint32_t> eligible;
+    std::vector<double> ew;
+};
 }
 
 
 MultiLobeBrdf::MultiLobeBrdf(std::shared_ptr<const Material> base, const PatchNdf &ndf, const QuadratureOptions &opt)
-    : m_base(std::move(base)), m_opt(opt), m_lobes(ndf.lobes.size()) {
+    : m_base(std::move(base)), m_opt(opt), m_lobes(ndf.lobes.size()), m_id(next_instance_id()) {
     if (!m_base) throw MesoError("multilobe BRDF: base material is null");
     const uint32_t bf = m_base->flags();
     if (bf & (BSDF_Delta | BSDF_Transmission))
@@ -166,23 +181,32 @@ float MultiLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &
     return total > 0.0 ? float(sum / total) : 0.f;
 }
 
-bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
+bool MultiLobeBrdf::pick_node(const Vec3 &wo, double u, NodePick &pick) const {
+    pick = NodePick();
     if (!(wo.z > 0.f)) return false;
     // Node choice with probability c_k [F_k wo .z > 0] / Σ: one pass records the eligible
-    // nodes (the test of pdf()), then the choice scans the recorded weights.
-    thread_local std::vector<uint32_t> eligible;
-    thread_local std::vector<double> ew;
-    eligible.clear();
-    ew.clear();
-    double total = 0.0;
-    for (size_t q = 0; q < m_nodes.size(); ++q)
-        if (const float z = m_nodes[q].frame.to_local(wo).z; z > 0.f) {
-            eligible.push_back(uint32_t(q));
-            ew.push_back(weight(m_nodes[q], z, wo.z));
-            total += ew.back();
-        }
+    // nodes (the test of pdf()), then the choice scans the recorded weights. The record is
+    // reused while the instance and wo (bit for bit) stay the same.
+    thread_local PickCache cache;
+    std::vector<uint32_t> &eligible = cache.eligible;
+    std::vector<double> &ew = cache.ew;
+    if (cache.owner != m_id || cache.wo.x != wo.x || cache.wo.y != wo.y || cache.wo.z != wo.z) {
+        eligible.clear();
+        ew.clear();
+        double sum = 0.0;
+        for (size_t q = 0; q < m_nodes.size(); ++q)
+            if (const float z = m_nodes[q].frame.to_local(wo).z; z > 0.f) {
+                eligible.push_back(uint32_t(q));
+                ew.push_back(weight(m_nodes[q], z, wo.z));
+                sum += ew.back();
+            }
+        cache.owner = m_id;
+        cache.wo = wo;
+        cache.total = sum;
+    }
+    const double total = cache.total;
     if (!(total > 0.0)) return false;
-    const double target = double(u_lobe) * total;
+    const double target = u * total;
     const NdfNode *chosen = nullptr;
     double cum = 0.0, u_rescaled = 0.0;
     for (size_t e = 0; e < eligible.size(); ++e) {
@@ -196,13 +220,22 @@ bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lo
         u_rescaled = 1.0;  // rounding: falls through to the last eligible node
     }
     if (!chosen) return false;
+    pick.node = chosen;
+    pick.lo = chosen->frame.to_local(wo);
+    pick.total = total;
+    pick.u_rescaled = u_rescaled;
+    return true;
+}
+
+bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
+    NodePick pick;
+    if (!pick_node(wo, double(u_lobe), pick)) return false;
     // The remaining fraction of u_lobe is handed to the base for its own lobe choice.
-    const float ub = std::min(std::max(float(u_rescaled), 0.f), 0x1.fffffep-1f);
+    const float ub = std::min(std::max(float(pick.u_rescaled), 0.f), 0x1.fffffep-1f);
     BSDFSample bs;
-    const Vec3 lo = chosen->frame.to_local(wo);
-    if (!m_base->sample(ctx, lo, ub, u, bs)) return false;
+    if (!m_base->sample(ctx, pick.lo, ub, u, bs)) return false;
     if (bs.flags & BSDF_Delta) return false;  // excluded in the constructor; defensive
-    const Vec3 wi = normalize(chosen->frame.to_world(bs.wi));
+    const Vec3 wi = normalize(pick.node->frame.to_world(bs.wi));
     if (!(wi.z > 0.f)) return false;  // below the macro horizon: the path ends (pdf excludes it)
     float p = 0.f;
     const Spectrum f = eval_pdf(ctx, wo, wi, &p);
@@ -212,6 +245,51 @@ bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lo
     out.weight = Spectrum(f.r / p, f.g / p, f.b / p);
     out.eta = 1.f;
     out.flags = bs.flags;
+    return true;
+}
+
+Spectrum MultiLobeBrdf::eval_pdf_node(const ShadingContext &ctx, const NodePick &pick, const Vec3 &wo,
+                                      const Vec3 &wi, float *pdf_out) const {
+    if (pdf_out) *pdf_out = 0.f;
+    if (!pick.node || !(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+    const Vec3 li = pick.node->frame.to_local(wi);
+    if (!(li.z > 0.f)) return Spectrum(0.f);  // g_k = 0 (and pdf_k = 0: reflection-only base)
+    const Spectrum f = m_base->eval_pdf(ctx, pick.lo, li, pdf_out);  // g_k = f · <ω_k, ωi>
+    const double s = pick.total;  // c_k g_k / P_k = Σ g_k (weight() of the choice in both modes)
+    return Spectrum(float(s * f.r), float(s * f.g), float(s * f.b));
+}
+
+Spectrum MultiLobeBrdf::eval_pdf_stochastic(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, double u,
+                                            float *pdf_out) const {
+    if (pdf_out) *pdf_out = 0.f;
+    if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+    NodePick pick;
+    if (!pick_node(wo, u, pick)) return Spectrum(0.f);
+    return eval_pdf_node(ctx, pick, wo, wi, pdf_out);
+}
+
+bool MultiLobeBrdf::sample_stochastic(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u,
+                                      BSDFSample &out, NodePick *pick_out) const {
+    NodePick pick;
+    if (!pick_node(wo, double(u_lobe), pick)) return false;
+    // The same direction as sample() for the same (u_lobe, u).
+    const float ub = std::min(std::max(float(pick.u_rescaled), 0.f), 0x1.fffffep-1f);
+    BSDFSample bs;
+    if (!m_base->sample(ctx, pick.lo, ub, u, bs)) return false;
+    if (bs.flags & BSDF_Delta) return false;
+    const Vec3 wi = normalize(pick.node->frame.to_world(bs.wi));
+    if (!(wi.z > 0.f)) return false;
+    // Node k's value and pdf at the direction returned (after the frame's round-off), so that
+    // weight = eval_pdf_node / its pdf exactly, as next-event estimation would see it.
+    float p = 0.f;
+    const Spectrum f = eval_pdf_node(ctx, pick, wo, wi, &p);
+    if (!(p > 0.f) || !std::isfinite(p)) return false;
+    out.wi = wi;
+    out.pdf = p;
+    out.weight = Spectrum(f.r / p, f.g / p, f.b / p);
+    out.eta = 1.f;
+    out.flags = bs.flags;
+    if (pick_out) *pick_out = pick;
     return true;
 }
 

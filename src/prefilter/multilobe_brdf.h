@@ -57,6 +57,37 @@
 //
 // Cost: eval and pdf are O(N) base evaluations, N = Σ kept nodes ≤ lobes · n_u · n_φ (6 · 4 · 6 =
 // 144 by default); sample is O(N) for the node choice plus pdf and eval (3 passes).
+//
+// Stochastic one-node estimator (eval_pdf_stochastic, sample_stochastic; the `prefiltered`
+// material's "estimator": "stochastic"). With g_k(ωo, ωi) = base.eval(F_k ωo, F_k ωi),
+// w_k(ωo) = weight(k) (c_k, or c_k <ω_k, ωo> / ωo.z with projected_area) and Σ(ωo) = Σ_k w_k over
+// the nodes visible from ωo (F_k ωo .z > 0; the others have g_k = 0),
+//   eval(ωo, ωi) = Σ_k w_k g_k = Σ_k P_k(ωo) · Σ(ωo) g_k(ωo, ωi),     P_k = w_k / Σ (sample()'s choice),
+// so picking ONE node k by P_k (a uniform u against the cumulative weights, the scan of sample())
+// and returning Σ(ωo) g_k(ωo, ωi) is an unbiased estimate of eval: 1 base evaluation instead of N
+// (plus the O(N) scan of cheap dot products for Σ and the choice). Its pdf is the node's own,
+// pdf_k(ωi) = base.pdf(F_k ωo, F_k ωi), NOT the mixture. sample_stochastic draws k with u_lobe
+// (its leftover goes to the base's lobe choice, as in sample()), samples the base in node k's
+// frame (the same directions as sample(): pdf() stays the exact density of the directions) and
+// returns pdf = pdf_k(ωi), weight = Σ(ωo) g_k(ωo, ωi) / pdf_k(ωi): 1 base sample + 1 base eval_pdf,
+// no pass over the nodes beyond the choice. Given the direction, the node was k with probability
+// P_k pdf_k(ωi) / pdf(ωi), so E[weight | ωi] = Σ_k w_k g_k / pdf(ωi) = eval / pdf: the exact
+// weight is the conditional mean of the stochastic one.
+//
+// Why it stays unbiased inside an MIS path tracer (next-event estimation with light pdf p_L,
+// power heuristic). For a FIXED node k, "light sample, value Σ g_k, MIS weight
+// w_L^k = p_L² / (p_L² + pdf_k²)" and "BSDF sample from node k, weight Σ g_k / pdf_k, MIS
+// weight w_B^k = pdf_k² / (p_L² + pdf_k²)" are an ordinary two-strategy MIS pair:
+// w_L^k + w_B^k = 1 wherever g_k L ≠ 0 (w_L^k = 1 where pdf_k = 0, w_B^k = 1 where p_L = 0; the
+// base's sampler covers its support). The next-event node and the BSDF-sample node are drawn
+// independently from the same P_k(ωo), so the expected contribution of the vertex is
+//   Σ_k P_k ∫ (Σ g_k) L w_L^k dωi + Σ_k P_k ∫ pdf_k (Σ g_k / pdf_k) L w_B^k dωi
+//     = Σ_k ∫ w_k g_k L (w_L^k + w_B^k) dωi = ∫ eval(ωo, ωi) L dωi.
+// This needs the integrator's emitter-hit MIS weight to use the pdf that sample_stochastic
+// returned (pdf_k of the node that produced the direction) and the next-event weight the pdf that
+// eval_pdf_stochastic returned. Exact (mixture) pdfs on one side and per-node ones on the other
+// do NOT sum to 1, so the `prefiltered` material switches BOTH to the stochastic form, and only
+// where the integrator hands it a uniform (ShadingContext::u_eval >= 0).
 #pragma once
 #include <memory>
 #include <string>
@@ -114,6 +145,32 @@ public:
     bool is_reciprocal() const override { return false; }
     std::string to_string() const override;
 
+    /// One node chosen for the viewer wo with probability P_k(wo) = weight(k) [k visible] / Σ
+    /// (the choice of sample()), for the stochastic estimator.
+    struct NodePick {
+        const NdfNode *node = nullptr;
+        Vec3 lo;                   ///< wo in the node's frame (lo.z > 0)
+        double total = 0.0;        ///< Σ(wo) = Σ_k weight(k) over the nodes visible from wo
+        double u_rescaled = 0.0;   ///< where u fell inside the node's interval, in [0, 1]
+    };
+    /// Chooses the node whose interval [Σ_{j<k} w_j, Σ_{j<=k} w_j) / Σ holds u ∈ [0, 1) (visible
+    /// nodes in the order of nodes(); u >= 1 gives the last); false when wo is below the horizon or
+    /// no node faces it. The visible nodes and their weights for the last (instance, wo) are kept
+    /// per thread, so that next-event estimation and BSDF sampling at one vertex (same wo) pay
+    /// for the O(N) pass once.
+    bool pick_node(const Vec3 &wo, double u, NodePick &pick) const;
+    /// Σ(wo) · g_k(wo, wi) for the picked node (the one-node estimate of eval) and, when pdf is not
+    /// null, pdf_k(wi) = base.pdf in the node's frame into *pdf (0 below either horizon).
+    Spectrum eval_pdf_node(const ShadingContext &ctx, const NodePick &pick, const Vec3 &wo, const Vec3 &wi,
+                           float *pdf) const;
+    /// pick_node(wo, u) then eval_pdf_node: its mean over u ∈ [0, 1) is eval(ctx, wo, wi) (see the header).
+    Spectrum eval_pdf_stochastic(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, double u,
+                                 float *pdf) const;
+    /// The directions of sample() (same u_lobe, u), with out.pdf = pdf_k(wi) of the chosen node and
+    /// out.weight = Σ(wo) g_k(wo, wi) / pdf_k(wi); the chosen node into *pick when not null.
+    bool sample_stochastic(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out,
+                           NodePick *pick = nullptr) const;
+
     /// eval(ctx, wo, wi[b]) for b < n into out[b] (same values; wo's per-node transform and
     /// test are done once): the next-event splat of prefilter/scaling.cpp.
     void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
@@ -142,6 +199,7 @@ private:
     QuadratureOptions m_opt;
     size_t m_lobes = 0;
     double m_total = 0.0, m_projected = 0.0;
+    uint64_t m_id = 0;  ///< unique per instance: the key of pick_node's per-thread cache
 };
 
 

@@ -11,6 +11,11 @@
 //    pdf = probability of having chosen that lobe (discrete), weight = value / that prob.
 //  * Reflection-only materials return 0 when wo.z <= 0 or wi.z <= 0; the integrator
 //    makes non-transmissive surfaces two-sided by flipping the frame towards wo.
+//  * The one exception to "sample's pdf = pdf()": where the integrator sets
+//    ShadingContext::u_eval >= 0, a material with a stochastic evaluation (`prefiltered`,
+//    "estimator": "stochastic") returns from eval_pdf and sample unbiased estimates of f and
+//    f / pdf with the pdf of one sub-strategy (shading.h). eval and pdf stay exact, and without
+//    u_eval (meso material, χ² tests, the prefilter tools) everything is exact.
 #pragma once
 #include <memory>
 #include <string>

@@ -102,6 +102,12 @@ Spectrum PathTracer::trace(const Scene &scene, RayDifferential ray, Sampler &sam
             for (const auto &env : m_envs) L += beta * quad->env_radiance(ctx, wo, *env);
         env_by_quadrature = quad != nullptr;
 
+        // A uniform for materials with a stochastic evaluation (ShadingContext::u_eval), drawn at
+        // every vertex so that the sample dimensions stay aligned across materials. Such a
+        // material returns from eval_pdf and sample per-strategy pdfs; the MIS below pairs them
+        // (bsdf_pdf from eval_pdf here, prev_pdf = bs.pdf from sample at the emitter hit).
+        ctx.u_eval = sampler.get_1d();
+
         // Next-event estimation: one light sample, MIS-weighted against BSDF sampling.
         if (mat->flags() & BSDF_Smooth) {
             float pmf;

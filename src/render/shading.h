@@ -31,6 +31,14 @@ struct ShadingContext {
     // Level of detail chosen for this path (LoD materials read it; others ignore it).
     int lod_level = 0;
     float lod_weight = 0.f;
+    /// A uniform random number in [0, 1) for materials with a stochastic evaluation (set by the
+    /// integrators for next-event estimation, one per path vertex); < 0: evaluate exactly. Every
+    /// material but `prefiltered` with "estimator": "stochastic" ignores it. Setting it declares
+    /// that the integrator pairs the pdf of eval_pdf with the pdf of sample() in its MIS weights
+    /// (as the path tracer does): such a material may then return an unbiased estimate of f with
+    /// the pdf of the strategy that produced it instead of the exact f and mixture pdf
+    /// (prefilter/multilobe_brdf.h, "Stochastic one-node estimator").
+    float u_eval = -1.f;
 };
 
 }  // namespace meso

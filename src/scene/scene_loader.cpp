@@ -219,8 +219,9 @@ void add_lod_levels(const Properties &lp, const std::shared_ptr<Shape> &shape, S
                 lp.fail("factors", fmt::format("level {}: factor {} is not a level of the model '{}' (it has {})", k,
                                                factors[k], model_dir, have));
             }
-    } else if (lp.has("scaling")) {
-        lp.fail("scaling", "only applies with a prefiltered \"model\"");
+    } else {
+        for (const char *key : {"scaling", "estimator"})
+            if (lp.has(key)) lp.fail(key, "only applies with a prefiltered \"model\"");
     }
 
     std::vector<std::shared_ptr<Material>> materials;
@@ -230,16 +231,18 @@ void add_lod_levels(const Properties &lp, const std::shared_ptr<Shape> &shape, S
             lp.fail("materials", fmt::format("expected one material per level ({}), got {}", factors.size(), materials.size()));
         shape->material = materials[0];
     } else if (model) {
-        // Level k: {"type": "prefiltered", "model": ..., "level": f_k, "scaling": ..., "tiling": the
-        // displacement's}; errors name lod.scaling etc. (the keys as the user wrote them).
+        // Level k: {"type": "prefiltered", "model": ..., "level": f_k, "scaling": ..., "estimator": ...,
+        // "tiling": the displacement's}; errors name lod.scaling etc. (the keys as the user wrote them).
         materials.push_back(shape->material);
         const std::string scaling = lp.has("scaling") ? lp.get_string("scaling") : std::string();
+        const std::string estimator = lp.has("estimator") ? lp.get_string("estimator") : std::string();
         for (size_t k = 1; k < factors.size(); ++k) {
             json mj = {{"type", "prefiltered"},
                        {"model", model_dir},
                        {"level", int(factors[k])},
                        {"tiling", {disp.tiling_u, disp.tiling_v}}};
             if (!scaling.empty()) mj["scaling"] = scaling;
+            if (!estimator.empty()) mj["estimator"] = estimator;
             materials.push_back(create_material(Properties(mj, lp.path(), lp.context_ptr())));
         }
     }
