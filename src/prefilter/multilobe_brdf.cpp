@@ -227,16 +227,23 @@ bool MultiLobeBrdf::pick_node(const Vec3 &wo, double u, NodePick &pick) const {
     return true;
 }
 
-bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
-    NodePick pick;
-    if (!pick_node(wo, double(u_lobe), pick)) return false;
+bool MultiLobeBrdf::sample_base_in_node(const ShadingContext &ctx, const NodePick &pick, Vec2 u, Vec3 &wi,
+                                        uint32_t &flags) const {
     // The remaining fraction of u_lobe is handed to the base for its own lobe choice.
     const float ub = std::min(std::max(float(pick.u_rescaled), 0.f), 0x1.fffffep-1f);
     BSDFSample bs;
     if (!m_base->sample(ctx, pick.lo, ub, u, bs)) return false;
     if (bs.flags & BSDF_Delta) return false;  // excluded in the constructor; defensive
-    const Vec3 wi = normalize(pick.node->frame.to_world(bs.wi));
-    if (!(wi.z > 0.f)) return false;  // below the macro horizon: the path ends (pdf excludes it)
+    wi = normalize(pick.node->frame.to_world(bs.wi));
+    flags = bs.flags;
+    return wi.z > 0.f;  // below the macro horizon: the path ends (pdf excludes it)
+}
+
+bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
+    NodePick pick;
+    Vec3 wi;
+    uint32_t flags = 0;
+    if (!pick_node(wo, double(u_lobe), pick) || !sample_base_in_node(ctx, pick, u, wi, flags)) return false;
     float p = 0.f;
     const Spectrum f = eval_pdf(ctx, wo, wi, &p);
     if (!(p > 0.f) || !std::isfinite(p)) return false;
@@ -244,7 +251,7 @@ bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lo
     out.pdf = p;
     out.weight = Spectrum(f.r / p, f.g / p, f.b / p);
     out.eta = 1.f;
-    out.flags = bs.flags;
+    out.flags = flags;
     return true;
 }
 
@@ -271,14 +278,10 @@ Spectrum MultiLobeBrdf::eval_pdf_stochastic(const ShadingContext &ctx, const Vec
 bool MultiLobeBrdf::sample_stochastic(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u,
                                       BSDFSample &out, NodePick *pick_out) const {
     NodePick pick;
-    if (!pick_node(wo, double(u_lobe), pick)) return false;
+    Vec3 wi;
+    uint32_t flags = 0;
     // The same direction as sample() for the same (u_lobe, u).
-    const float ub = std::min(std::max(float(pick.u_rescaled), 0.f), 0x1.fffffep-1f);
-    BSDFSample bs;
-    if (!m_base->sample(ctx, pick.lo, ub, u, bs)) return false;
-    if (bs.flags & BSDF_Delta) return false;
-    const Vec3 wi = normalize(pick.node->frame.to_world(bs.wi));
-    if (!(wi.z > 0.f)) return false;
+    if (!pick_node(wo, double(u_lobe), pick) || !sample_base_in_node(ctx, pick, u, wi, flags)) return false;
     // Node k's value and pdf at the direction returned (after the frame's round-off), so that
     // weight = eval_pdf_node / its pdf exactly, as next-event estimation would see it.
     float p = 0.f;
@@ -288,7 +291,7 @@ bool MultiLobeBrdf::sample_stochastic(const ShadingContext &ctx, const Vec3 &wo,
     out.pdf = p;
     out.weight = Spectrum(f.r / p, f.g / p, f.b / p);
     out.eta = 1.f;
-    out.flags = bs.flags;
+    out.flags = flags;
     if (pick_out) *pick_out = pick;
     return true;
 }

@@ -159,6 +159,9 @@ public:
     /// per thread, so that next-event estimation and BSDF sampling at one vertex (same wo) pay
     /// for the O(N) pass once.
     bool pick_node(const Vec3 &wo, double u, NodePick &pick) const;
+    /// Samples the base in the picked node's frame (the leftover of u_lobe picks the base's own
+    /// lobe): wi in the macro frame and the base's flags; false below either horizon.
+    bool sample_base_in_node(const ShadingContext &ctx, const NodePick &pick, Vec2 u, Vec3 &wi, uint32_t &flags) const;
     /// Σ(wo) · g_k(wo, wi) for the picked node (the one-node estimate of eval) and, when pdf is not
     /// null, pdf_k(wi) = base.pdf in the node's frame into *pdf (0 below either horizon).
     Spectrum eval_pdf_node(const ShadingContext &ctx, const NodePick &pick, const Vec3 &wo, const Vec3 &wi,
