@@ -227,6 +227,19 @@ bool MultiLobeBrdf::pick_node(const Vec3 &wo, double u, NodePick &pick) const {
     return true;
 }
 
+namespace {
+/// out = (wi, pdf p, weight f / p, flags); false where p is not a positive finite density.
+bool sample_record(const Vec3 &wi, const Spectrum &f, float p, uint32_t flags, BSDFSample &out) {
+    if (!(p > 0.f) || !std::isfinite(p)) return false;
+    out.wi = wi;
+    out.pdf = p;
+    out.weight = Spectrum(f.r / p, f.g / p, f.b / p);
+    out.eta = 1.f;
+    out.flags = flags;
+    return true;
+}
+}  // namespace
+
 bool MultiLobeBrdf::sample_base_in_node(const ShadingContext &ctx, const NodePick &pick, Vec2 u, Vec3 &wi,
                                         uint32_t &flags) const {
     // The remaining fraction of u_lobe is handed to the base for its own lobe choice.
@@ -246,12 +259,7 @@ bool MultiLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lo
     if (!pick_node(wo, double(u_lobe), pick) || !sample_base_in_node(ctx, pick, u, wi, flags)) return false;
     float p = 0.f;
     const Spectrum f = eval_pdf(ctx, wo, wi, &p);
-    if (!(p > 0.f) || !std::isfinite(p)) return false;
-    out.wi = wi;
-    out.pdf = p;
-    out.weight = Spectrum(f.r / p, f.g / p, f.b / p);
-    out.eta = 1.f;
-    out.flags = flags;
+    if (!sample_record(wi, f, p, flags, out)) return false;
     return true;
 }
 
@@ -286,12 +294,7 @@ bool MultiLobeBrdf::sample_stochastic(const ShadingContext &ctx, const Vec3 &wo,
     // weight = eval_pdf_node / its pdf exactly, as next-event estimation would see it.
     float p = 0.f;
     const Spectrum f = eval_pdf_node(ctx, pick, wo, wi, &p);
-    if (!(p > 0.f) || !std::isfinite(p)) return false;
-    out.wi = wi;
-    out.pdf = p;
-    out.weight = Spectrum(f.r / p, f.g / p, f.b / p);
-    out.eta = 1.f;
-    out.flags = flags;
+    if (!sample_record(wi, f, p, flags, out)) return false;
     if (pick_out) *pick_out = pick;
     return true;
 }
