@@ -28,12 +28,8 @@
 #include "scratch_dir.h"
 #include "prefiltered_test_util.h"
 
-using namespace meso;
-using namespace meso::prefilter;
 using meso::test::dir_deg;
-using meso::test::make_material;
-using namespace meso::test::pf;
-namespace fs = std::filesystem;
+using namespace meso::test::pf;  // also meso, meso::prefilter, make_material, fs
 
 // ------------------------------------------------------------------ (g) the stochastic estimator
 //
