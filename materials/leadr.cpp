@@ -52,7 +52,35 @@
 //   diffuse_quadrature    int         12           N of the N x N grid for eq. 21, [1, 128]
 //   env_quadrature        int         8            N of Algorithm 1 (specular, environment), [1, 128]
 //   env_diffuse_quadrature int        5            N of Algorithm 3 (the paper's 5 x 5), [1, 128]
-//   env_irradiance        string      "shadowed"   "shadowed" (eq. 20 per point) | "paper" (Algorithm 2)
+//   env_irradiance        string      "shadowed"   "shadowed" (eq. 20 per point) | "paper" (Algorithm 2) |
+//                                                  "gaussian" (paper 001 §5.3: the unshadowed SH irradiance map
+//                                                  E(n) filtered as a slope colour map, rho/pi <E, D_s>, D_s the
+//                                                  Gaussian visible-slope distribution; env_diffuse_quadrature^2
+//                                                  Gauss-Hermite nodes)
+//   colormap              object      -            colour correlated to the heights or slopes (paper 001 §5), below
+//
+// Colour maps on the Gaussian surface (paper 001 §5.1-5.2; render/transfer_filter.h). The colour
+// multiplies both lobes (the paper's assumption that colour and BRDF are uncorrelated). Keys of
+// the "colormap" object:
+//   ramp                  ramp        required     the colour map C (texture/ramp_parse.h)
+//   attribute             string      "height"     "height" | "slope_x" | "slope_y" | "steepness" (as `microcolormap`)
+//   filter                string      "gaussian"   "gaussian": <C, D> with D the view- (and light-) dependent
+//                                                  filtering distribution; "naive": C of the footprint's mean
+//                                                  attribute (mean height / mean slope: texture filtering)
+//   height_distribution   string      "fit"        "fit": D_h ~ N(mu_d, sigma_d) by the paper's eq. 16-17;
+//                                                  "exact": mu_d, sigma_d of eq. 15 (tabulated quadrature)
+//   noise_mean, noise_sigma float     0, 0         noise-perturbed heights C(h + r): mu_d += mu_r,
+//                                                  sigma_d^2 += sigma_r^2 (§5.1)
+//   height_mean, height_sigma float   -            height statistics for constant slope statistics (no heightmap)
+//   sigma_max             float       ramp width   the preconvolved table's sigma range; beyond it the closed form
+//   table_size            [n, m]      [512, 128]   the table's means x sigmas
+//   quadrature            int         8            Gauss-Hermite order per axis for "steepness" (not linear in s)
+// Height: h_bar and sigma_h^2 are the footprint-filtered E[h], E[h^2] - E[h]^2 of the heightmap
+// (build_height_moments); Lambda = Lambda(wo) + Lambda(wi) of this material's distribution, so the
+// shadowing G already carries eq. 12's average visibility (G / G1(wo)) and the colour is
+// <C, N(h_bar + mu_d + mu_r, sigma_d^2 + sigma_r^2)>. In env_radiance the light term is dropped
+// (Lambda = Lambda(wo)). Slopes: D_s = visible_slope_gaussian(distribution, wo); slope_x / slope_y
+// read the preconvolved table with its marginal, steepness integrates C(|s|) against D_s.
 #include <cmath>
 #include <optional>
 #include <fmt/format.h>
@@ -61,6 +89,8 @@
 #include "render/material.h"
 #include "render/slope_distribution.h"
 #include "render/texture.h"
+#include "render/transfer_filter.h"
+#include "texture/ramp_parse.h"
 #include "sampling/warp.h"
 #include "scene/properties.h"
 #include "scene/registry.h"
@@ -68,6 +98,34 @@
 
 namespace meso {
 namespace {
+
+enum class ColorAttribute { Height, SlopeX, SlopeY, Steepness };
+
+/// The "colormap" block (paper 001 §5).
+struct LeadrColormap {
+    bool on = false;
+    ColorAttribute attr = ColorAttribute::Height;
+    std::string attr_name = "height";
+    bool filtered = true, exact_height = false;
+    double noise_mean = 0, noise_sigma = 0;
+    int quadrature = 8;
+    Ramp ramp;
+    std::shared_ptr<PreconvolvedTable> table;
+
+    /// <C, N(mean, sigma^2)> from the table (the closed form beyond sigma_max).
+    Spectrum smooth(double mean, double sigma) const {
+        float t[3];
+        if (table->lookup(mean, sigma, t)) return Spectrum(t[0], t[1], t[2]);
+        double c[3];
+        ramp.gaussian_average(mean, sigma, c);
+        return Spectrum(float(c[0]), float(c[1]), float(c[2]));
+    }
+    Spectrum at(double v) const {
+        double c[3];
+        ramp.eval(v, c);
+        return Spectrum(float(c[0]), float(c[1]), float(c[2]));
+    }
+};
 
 struct LeadrParams {
     SlopeSource source;
@@ -81,6 +139,7 @@ struct LeadrParams {
     LeadrShadowing shadowing = LeadrShadowing::Joint;
     int diffuse_n = 12;
     LeadrEnvOptions env_spec, env_diff;
+    LeadrColormap cmap;
 };
 
 class Leadr final : public Material, public EnvQuadratureShading {
@@ -106,7 +165,7 @@ public:
         const double li = pt.g->lambda(wi, m_p.rational);
         const double G = leadr_shadowing(pt.lo, li, m_p.shadowing);
         if (!(G > 0.0)) return Spectrum(0.f);
-        return value(ctx, pt, wo, wi, G);
+        return value(ctx, pt, wo, wi, G) * color(ctx, pt, wo, li);
     }
 
     float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
@@ -139,7 +198,7 @@ public:
         out.wi = wi;
         out.eta = 1.f;
         const double G = leadr_shadowing(pt.lo, li, m_p.shadowing);
-        out.weight = (G > 0.0 ? value(ctx, pt, wo, wi, G) : Spectrum(0.f)) / out.pdf;
+        out.weight = (G > 0.0 ? value(ctx, pt, wo, wi, G) * color(ctx, pt, wo, li) : Spectrum(0.f)) / out.pdf;
         return out.weight.is_finite();
     }
 
@@ -147,6 +206,11 @@ public:
         Spectrum a(0.f);
         if (m_p.has_spec) a += fresnel_conductor(1.f, m_p.eta, m_p.k) * m_p.ks->eval(ctx);
         if (m_p.has_diffuse) a += m_p.kd->eval(ctx);
+        if (m_p.cmap.on) {
+            Point pt;
+            point(ctx, pt);
+            a *= naive_color(ctx, pt);
+        }
         return a;
     }
 
@@ -161,7 +225,7 @@ public:
                 m_p.env_spec);
         }
         if (m_p.has_diffuse) L += leadr_env_diffuse(*pt.g, wo, ctx.frame, m_p.kd->eval(ctx), env, m_p.env_diff);
-        return L;
+        return m_p.cmap.on ? L * color(ctx, pt, wo, 0.0) : L;
     }
 
     std::string to_string() const override {
@@ -171,6 +235,11 @@ public:
         if (!m_p.has_spec) s += ", no specular";
         if (m_p.shadowing == LeadrShadowing::Masking) s += ", masking only";
         if (m_p.rational) s += ", rational Lambda";
+        if (m_p.cmap.on)
+            s += fmt::format(", colormap on {} ({}{})", m_p.cmap.attr_name, m_p.cmap.filtered ? "gaussian" : "naive",
+                             m_p.cmap.attr == ColorAttribute::Height && m_p.cmap.filtered
+                                 ? (m_p.cmap.exact_height ? ", exact D_h" : ", fitted D_h")
+                                 : "");
         return s + "]";
     }
 
@@ -206,6 +275,44 @@ private:
         pt.lo = pt.g->lambda(wo, m_p.rational);
         return std::isfinite(pt.lo);
     }
+    /// C of the footprint's mean attribute (the "naive" filter, texture filtering of the driver).
+    Spectrum naive_color(const ShadingContext &ctx, const Point &pt) const {
+        const LeadrColormap &c = m_p.cmap;
+        const SlopeGaussian &g = pt.g->params();
+        switch (c.attr) {
+            case ColorAttribute::Height: {
+                double mean, var;
+                m_p.source.height_moments(ctx, mean, var);
+                return c.at(mean + c.noise_mean);
+            }
+            case ColorAttribute::SlopeX: return c.at(g.mx);
+            case ColorAttribute::SlopeY: return c.at(g.my);
+            default: return c.at(std::sqrt(g.mx * g.mx + g.my * g.my));
+        }
+    }
+    /// The colour factor for view wo and light shadowing li = Lambda(wi) (paper 001 §5.1-5.2).
+    Spectrum color(const ShadingContext &ctx, const Point &pt, const Vec3 &wo, double li) const {
+        const LeadrColormap &c = m_p.cmap;
+        if (!c.on) return Spectrum(1.f);
+        if (!c.filtered) return naive_color(ctx, pt);
+        if (c.attr == ColorAttribute::Height) {
+            double mean, var;
+            m_p.source.height_moments(ctx, mean, var);
+            const double L = pt.lo + li, sh = std::sqrt(var);
+            const HeightFilter f =
+                c.exact_height ? HeightFilterTable::instance().lookup(sh, L) : height_filter_fit(sh, L);
+            return c.smooth(mean + f.mu + c.noise_mean, std::sqrt(f.sigma * f.sigma + c.noise_sigma * c.noise_sigma));
+        }
+        const SlopeGaussian d = visible_slope_gaussian(pt.g->params(), wo);
+        if (c.attr == ColorAttribute::SlopeX) return c.smooth(d.mx, std::sqrt(d.sxx));
+        if (c.attr == ColorAttribute::SlopeY) return c.smooth(d.my, std::sqrt(d.syy));
+        double out[3];
+        gaussian_expectation_2d(d, c.quadrature, 3, [&](double sx, double sy, double *o) {
+            c.ramp.eval(std::sqrt(sx * sx + sy * sy), o);
+        }, out);
+        return Spectrum(float(out[0]), float(out[1]), float(out[2]));
+    }
+
     /// f |cos theta_i| of both lobes for an unshadowed pair with shadowing term G > 0.
     Spectrum value(const ShadingContext &ctx, const Point &pt, const Vec3 &wo, const Vec3 &wi, double G) const {
         Spectrum v(0.f);
@@ -256,6 +363,62 @@ int parse_grid(const Properties &p, const char *key, int def) {
     return n;
 }
 
+LeadrColormap parse_colormap(const Properties &parent, SlopeSource &source) {
+    LeadrColormap c;
+    const Properties p = parent.child("colormap");
+    c.on = true;
+    c.ramp = parse_ramp(p, "ramp", 3);
+    c.attr_name = p.get_string("attribute", "height");
+    if (c.attr_name == "height") c.attr = ColorAttribute::Height;
+    else if (c.attr_name == "slope_x") c.attr = ColorAttribute::SlopeX;
+    else if (c.attr_name == "slope_y") c.attr = ColorAttribute::SlopeY;
+    else if (c.attr_name == "steepness") c.attr = ColorAttribute::Steepness;
+    else
+        p.fail("attribute",
+               fmt::format("expected \"height\", \"slope_x\", \"slope_y\" or \"steepness\", got \"{}\"", c.attr_name));
+    const std::string f = p.get_string("filter", "gaussian");
+    if (f == "gaussian") c.filtered = true;
+    else if (f == "naive") c.filtered = false;
+    else p.fail("filter", fmt::format("expected \"gaussian\" or \"naive\", got \"{}\"", f));
+    const std::string hd = p.get_string("height_distribution", "fit");
+    if (hd == "fit") c.exact_height = false;
+    else if (hd == "exact") c.exact_height = true;
+    else p.fail("height_distribution", fmt::format("expected \"fit\" or \"exact\", got \"{}\"", hd));
+    c.noise_mean = p.get_float("noise_mean", 0.f);
+    c.noise_sigma = p.get_float("noise_sigma", 0.f);
+    if (!std::isfinite(c.noise_mean)) p.fail("noise_mean", "expected a finite number");
+    if (!(c.noise_sigma >= 0.0) || !std::isfinite(c.noise_sigma)) p.fail("noise_sigma", "expected a finite number >= 0");
+    const bool hm = p.has("height_mean"), hs = p.has("height_sigma");
+    if (hm || hs) {
+        if (!source.is_constant())
+            p.fail(hm ? "height_mean" : "height_sigma", "the heights come from the heightmap; give these only with "
+                                                        "constant statistics (covariance / mean_slope)");
+        const float mean = p.get_float("height_mean", 0.f), sigma = p.get_float("height_sigma", 0.f);
+        if (!std::isfinite(mean)) p.fail("height_mean", "expected a finite number");
+        if (!(sigma >= 0.f) || !std::isfinite(sigma)) p.fail("height_sigma", "expected a finite number >= 0");
+        source.set_constant_height(mean, sigma);
+    }
+    if (c.attr == ColorAttribute::Height && !source.has_heights())
+        p.fail("attribute", "a colour map on heights needs the material's \"heightmap\" or, with constant slope "
+                            "statistics, \"height_mean\" and \"height_sigma\"");
+    double smax = c.ramp.x_max() - c.ramp.x_min();
+    if (!(smax > 0.0)) smax = 1.0;
+    smax = p.get_float("sigma_max", float(smax));
+    if (!(smax > 0.0) || !std::isfinite(smax)) p.fail("sigma_max", "expected a finite number > 0");
+    int nm = 512, ns = 128;
+    if (p.has("table_size")) {
+        const std::vector<float> t = p.get_floats("table_size");
+        if (t.size() != 2 || !(t[0] >= 2 && t[0] <= 8192) || !(t[1] >= 2 && t[1] <= 8192))
+            p.fail("table_size", "expected [n_mean, n_sigma], each in [2, 8192]");
+        nm = int(t[0]), ns = int(t[1]);
+    }
+    c.table = std::make_shared<PreconvolvedTable>(PreconvolvedTable::of_ramp(c.ramp, smax, nm, ns));
+    c.quadrature = p.get_int("quadrature", 8);
+    if (c.quadrature < 1 || c.quadrature > 64) p.fail("quadrature", "expected an order in [1, 64]");
+    p.check_unused("leadr colormap");
+    return c;
+}
+
 std::shared_ptr<Material> make_leadr(const Properties &p) {
     LeadrParams lp;
     const bool has_stats = p.has("covariance") || p.has("heightmap");
@@ -282,7 +445,9 @@ std::shared_ptr<Material> make_leadr(const Properties &p) {
     const std::string irr = p.get_string("env_irradiance", "shadowed");
     if (irr == "shadowed") lp.env_diff.irradiance = LeadrIrradiance::Shadowed;
     else if (irr == "paper") lp.env_diff.irradiance = LeadrIrradiance::Paper;
-    else p.fail("env_irradiance", fmt::format("expected \"shadowed\" or \"paper\", got \"{}\"", irr));
+    else if (irr == "gaussian") lp.env_diff.irradiance = LeadrIrradiance::Gaussian;
+    else p.fail("env_irradiance", fmt::format("expected \"shadowed\", \"paper\" or \"gaussian\", got \"{}\"", irr));
+    if (p.has("colormap")) lp.cmap = parse_colormap(p, lp.source);
     for (LeadrEnvOptions *o : {&lp.env_spec, &lp.env_diff}) {
         o->shadowing = lp.shadowing;
         o->rational_lambda = lp.rational;

@@ -75,6 +75,7 @@ ShadingContext SurfaceInteraction::shading_context(bool two_sided) const {
         ctx.dpdu_macro = length_squared(dpdu_footprint) > 0.f ? dpdu_footprint : dpdu;
         ctx.dpdv_macro = length_squared(dpdv_footprint) > 0.f ? dpdv_footprint : dpdv;
     }
+    ctx.micro_height = micro_height;
     ctx.dpdu = dpdu;
     ctx.dpdv = dpdv;
     ctx.dpdx = dpdx;

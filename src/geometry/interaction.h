@@ -1,5 +1,6 @@
 // A ray's hit on a surface, with everything shading needs.
 #pragma once
+#include <limits>
 #include "core/frame.h"
 #include "core/ray.h"
 #include "render/shading.h"
@@ -28,6 +29,9 @@ struct SurfaceInteraction {
     /// tangents, so footprints measure the base surface in texels of the full map instead
     /// of being projected onto tilted micro-facets.
     Vec3 n_footprint, dpdu_footprint, dpdv_footprint;
+    /// Height of the hit in the displacement field (world units) on shell-mapped
+    /// microgeometry; NaN elsewhere (ground truth for colour maps on heights, paper 001).
+    float micro_height = std::numeric_limits<float>::quiet_NaN();
     Vec3 wo;          ///< direction towards the ray origin (unit, world)
     float p_error = 0.f; ///< absolute error bound of p (per component), set by the shape
     const Shape *shape = nullptr;

@@ -301,7 +301,7 @@ void ShellShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float 
     const Tet &T = P.tet[prim % 3];
     const Heightfield &hf = *m_disp.field;
     float hx, hy;
-    hf.eval(double(u) + double(P.ox), double(v) + double(P.oy), hx, hy);
+    si.micro_height = hf.eval(double(u) + double(P.ox), double(v) + double(P.oy), hx, hy);
     si.t = t;
     si.shape = this;
     si.prim = prim;

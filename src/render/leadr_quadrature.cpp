@@ -1,4 +1,5 @@
 #include "render/leadr_quadrature.h"
+#include "render/transfer_filter.h"
 #include <algorithm>
 #include <cmath>
 #include <mutex>
@@ -223,6 +224,16 @@ Spectrum leadr_env_diffuse(const GaussianSlopes &g, const Vec3 &wo, const Frame 
                            const PrefilteredEnvironment &env, const LeadrEnvOptions &opt) {
     double area, lo;
     if (!view_terms(g, wo, opt.rational_lambda, area, lo)) return Spectrum(0.f);
+    if (opt.irradiance == LeadrIrradiance::Gaussian) {  // paper 001 §5.3
+        const SlopeGaussian d = visible_slope_gaussian(g.params(), wo);
+        double e[3];
+        gaussian_expectation_2d(d, std::clamp(opt.n, 1, 64), 3, [&](double sx, double sy, double *o) {
+            const Spectrum E = sh9_irradiance(env.sh(), frame.to_world(slope_to_normal(sx, sy)));
+            for (int ch = 0; ch < 3; ++ch) o[ch] = std::max(0.0, double(E[ch]));
+        }, e);
+        const Spectrum out = rho * Spectrum(float(e[0] / kPi), float(e[1] / kPi), float(e[2] / kPi));
+        return out.is_finite() ? out : Spectrum(0.f);
+    }
     // Algorithm 2: the coefficients of L(w_i) E[V V] (eq. 20).
     std::array<Spectrum, 9> c{};
     const bool local = opt.irradiance == LeadrIrradiance::Shadowed;

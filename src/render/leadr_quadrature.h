@@ -197,7 +197,10 @@ void sh9_add(std::array<Spectrum, 9> &c, const Vec3 &d, const Spectrum &P);
 /// as printed in paper 000 §5.3), in the coefficients' frame.
 Spectrum sh9_irradiance(const std::array<Spectrum, 9> &c, const Vec3 &n);
 
-enum class LeadrIrradiance { Paper, Shadowed };
+/// Paper: Algorithm 2 as published; Shadowed: per-point shadowed projection; Gaussian: paper 001
+/// §5.3, the unshadowed irradiance map as a slope colour map filtered with the Gaussian
+/// visible-slope distribution (render/transfer_filter.h): rho / pi <E, D_s>.
+enum class LeadrIrradiance { Paper, Shadowed, Gaussian };
 
 /// Options shared by the environment quadratures.
 struct LeadrEnvOptions {

@@ -1,5 +1,6 @@
 // What a material or texture sees at a shading point.
 #pragma once
+#include <limits>
 #include "core/frame.h"
 #include "core/spectrum.h"
 
@@ -25,6 +26,9 @@ struct ShadingContext {
     /// dpdv_macro, n_macro), which is LEFT-handed where the uv parameterisation is (a
     /// `rectangle`'s v runs down): the map's y axis must follow v, as the displacement does.
     Vec3 n_macro, dpdu_macro, dpdv_macro;
+    /// Height of the hit in the displacement field (world units) when it is on shell-mapped
+    /// microgeometry, NaN elsewhere (the `microcolormap` texture's ground truth, paper 001).
+    float micro_height = std::numeric_limits<float>::quiet_NaN();
     // Ray-differential footprint on the surface (zero when unknown, e.g. in `meso material`).
     Vec3 dpdx, dpdy;
     float dudx = 0, dudy = 0, dvdx = 0, dvdy = 0;

@@ -28,6 +28,21 @@ MipMap build_slope_moments(const Heightfield &hf, double tile_u, double tile_v) 
     return MipMap(w, h, SlopeMomentCount, std::move(data), WrapMode::Repeat);
 }
 
+MipMap build_height_moments(const Heightfield &hf, double center) {
+    const int w = hf.width(), h = hf.height();
+    std::vector<float> data(size_t(w) * h * 2);
+    for (int j = 0; j < h; ++j)
+        for (int i = 0; i < w; ++i) {
+            const double a = hf.vertex(i, j) - center, b = hf.vertex(i + 1, j) - center,
+                         c = hf.vertex(i, j + 1) - center, d = hf.vertex(i + 1, j + 1) - center;
+            float *m = &data[(size_t(j) * w + i) * 2];
+            m[0] = float((a + b + c + d) / 4);
+            // E[w_i w_k] over one axis: 1/3 for the same end, 1/6 for opposite ends.
+            m[1] = float((a * a + b * b + c * c + d * d) / 9 + (a * b + a * c + b * d + c * d) / 9 + (a * d + b * c) / 18);
+        }
+    return MipMap(w, h, 2, std::move(data), WrapMode::Repeat);
+}
+
 SlopeGaussian slope_gaussian(const float m[SlopeMomentCount], double dudx, double dvdx, double dudy, double dvdy,
                              double eta, double base_variance) {
     // Texture-space mean and covariance (eq. 9), height-scaled.

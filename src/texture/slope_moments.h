@@ -47,4 +47,13 @@ bool uv_per_tangent(const double dpdu[3], const double dpdv[3], const double t[3
 /// `tile_v` in uv (1 / tiling): slopes are per unit uv.
 MipMap build_slope_moments(const Heightfield &hf, double tile_u = 1.0, double tile_v = 1.0);
 
+/// Height moments for colour maps on heights (paper 001 §5.1): per cell the exact E[h - center]
+/// and E[(h - center)^2] of its bilinear patch, as a 2-channel MIP pyramid (so a coarse texel
+/// holds the mean and second moment of all the heights under it). For corners h00, h10, h01,
+/// h11 (centred): E[h] = (h00 + h10 + h01 + h11) / 4 and E[h^2] = (sum of squares) / 9 +
+/// (products of edge neighbours h00 h10 + h00 h01 + h10 h11 + h01 h11) / 9 + (diagonal
+/// products h00 h11 + h10 h01) / 18. `center` (e.g. the map's mean) keeps the float variance
+/// E[h^2] - E[h]^2 free of cancellation.
+MipMap build_height_moments(const Heightfield &hf, double center);
+
 }  // namespace meso

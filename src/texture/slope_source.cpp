@@ -16,7 +16,33 @@ SlopeSource::SlopeSource(const Heightfield &field, float tiling_u, float tiling_
       m_tv(tiling_v),
       m_filter(filter),
       m_max_aniso(max_anisotropy),
-      m_source(std::move(source)) {}
+      m_source(std::move(source)) {
+    double sum = 0;
+    for (int j = 0; j < field.height(); ++j)
+        for (int i = 0; i < field.width(); ++i) sum += field.vertex(i, j);
+    m_hcenter = sum / (double(field.width()) * field.height());
+    m_hmip = std::make_shared<MipMap>(build_height_moments(field, m_hcenter));
+}
+
+bool SlopeSource::height_moments(const ShadingContext &ctx, double &mean, double &variance) const {
+    if (!m_hmip) {
+        mean = m_const_hmean;
+        variance = m_const_hvar;
+        return m_has_const_h;
+    }
+    float m[2];
+    const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
+    m_hmip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, m, m_max_aniso);
+    mean = m_hcenter + m[0];
+    variance = std::max(0.0, double(m[1]) - double(m[0]) * m[0]);
+    return true;
+}
+
+void SlopeSource::set_constant_height(double mean, double sigma) {
+    m_const_hmean = mean;
+    m_const_hvar = sigma * sigma;
+    m_has_const_h = true;
+}
 
 bool SlopeSource::present(const Properties &p) {
     for (const char *k : {"heightmap", "mean_slope", "covariance", "filter", "max_anisotropy"})

@@ -51,6 +51,13 @@ public:
     SlopeGaussian eval(const ShadingContext &ctx) const;
     /// The filtered texture-space moments at the shading point (SlopeMoment order).
     void moments(const ShadingContext &ctx, float out[SlopeMomentCount]) const;
+    /// The footprint-filtered height mean and variance (world units; paper 001 §5.1) from the
+    /// height-moment pyramid of the map (build_height_moments), or the constants given by
+    /// set_constant_height. False when neither is available.
+    bool height_moments(const ShadingContext &ctx, double &mean, double &variance) const;
+    /// Height statistics for a constant source (mean, standard deviation >= 0).
+    void set_constant_height(double mean, double sigma);
+    bool has_heights() const { return bool(m_hmip) || m_has_const_h; }
     /// Mean of the distribution over the whole map for an undistorted unit mapping
     /// (J = identity), for hints and descriptions.
     SlopeGaussian mean_over_map() const;
@@ -61,6 +68,9 @@ public:
 private:
     SlopeGaussian m_const;
     std::shared_ptr<const MipMap> m_mip;
+    std::shared_ptr<const MipMap> m_hmip;  ///< E[h - m_hcenter], E[(h - m_hcenter)^2]
+    double m_hcenter = 0, m_const_hmean = 0, m_const_hvar = 0;
+    bool m_has_const_h = false;
     float m_tu = 1.f, m_tv = 1.f;
     Filter m_filter = Filter::Trilinear;
     float m_max_aniso = 8.f;
