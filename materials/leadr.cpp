@@ -74,13 +74,13 @@
 //   height_mean, height_sigma float   -            height statistics for constant slope statistics (no heightmap)
 //   sigma_max             float       ramp width   the preconvolved table's sigma range; beyond it the closed form
 //   table_size            [n, m]      [512, 128]   the table's means x sigmas
-//   quadrature            int         8            Gauss-Hermite order per axis for "steepness" (not linear in s)
 // Height: h_bar and sigma_h^2 are the footprint-filtered E[h], E[h^2] - E[h]^2 of the heightmap
 // (build_height_moments); Lambda = Lambda(wo) + Lambda(wi) of this material's distribution, so the
 // shadowing G already carries eq. 12's average visibility (G / G1(wo)) and the colour is
 // <C, N(h_bar + mu_d + mu_r, sigma_d^2 + sigma_r^2)>. In env_radiance the light term is dropped
 // (Lambda = Lambda(wo)). Slopes: D_s = visible_slope_gaussian(distribution, wo); slope_x / slope_y
-// read the preconvolved table with its marginal, steepness integrates C(|s|) against D_s.
+// read the preconvolved table with its marginal, steepness integrates C(|s|) against D_s
+// (gaussian_average_steepness: polar quadrature about s = 0, ~10 us).
 #include <cmath>
 #include <optional>
 #include <fmt/format.h>
@@ -108,7 +108,6 @@ struct LeadrColormap {
     std::string attr_name = "height";
     bool filtered = true, exact_height = false;
     double noise_mean = 0, noise_sigma = 0;
-    int quadrature = 8;
     Ramp ramp;
     std::shared_ptr<PreconvolvedTable> table;
 
@@ -307,9 +306,7 @@ private:
         if (c.attr == ColorAttribute::SlopeX) return c.smooth(d.mx, std::sqrt(d.sxx));
         if (c.attr == ColorAttribute::SlopeY) return c.smooth(d.my, std::sqrt(d.syy));
         double out[3];
-        gaussian_expectation_2d(d, c.quadrature, 3, [&](double sx, double sy, double *o) {
-            c.ramp.eval(std::sqrt(sx * sx + sy * sy), o);
-        }, out);
+        gaussian_average_steepness(c.ramp, d, out);
         return Spectrum(float(out[0]), float(out[1]), float(out[2]));
     }
 
@@ -413,8 +410,6 @@ LeadrColormap parse_colormap(const Properties &parent, SlopeSource &source) {
         nm = int(t[0]), ns = int(t[1]);
     }
     c.table = std::make_shared<PreconvolvedTable>(PreconvolvedTable::of_ramp(c.ramp, smax, nm, ns));
-    c.quadrature = p.get_int("quadrature", 8);
-    if (c.quadrature < 1 || c.quadrature > 64) p.fail("quadrature", "expected an order in [1, 64]");
     p.check_unused("leadr colormap");
     return c;
 }

@@ -428,6 +428,63 @@ void gaussian_expectation_2d(const SlopeGaussian &g, int n, int channels,
         }
 }
 
+void gaussian_average_steepness(const Ramp &ramp, const SlopeGaussian &g, double *out) {
+    const int ch = ramp.channels();
+    const double sxx = std::max(0.0, g.sxx), syy = std::max(0.0, g.syy);
+    const double tr = sxx + syy, dd = std::sqrt(std::max(0.0, 0.25 * (sxx - syy) * (sxx - syy) + g.sxy * g.sxy));
+    const double smax = std::sqrt(0.5 * tr + dd);
+    const double mlen = std::sqrt(g.mx * g.mx + g.my * g.my);
+    auto smooth_rule = [&]() {
+        gaussian_expectation_2d(g, 12, ch, [&](double x, double y, double *o) { ramp.eval(std::sqrt(x * x + y * y), o); },
+                                out);
+    };
+    if (!(smax > 0.0) || smax < 0.2 * mlen || !std::isfinite(smax) || !std::isfinite(mlen)) {
+        smooth_rule();
+        return;
+    }
+    // Regularised inverse covariance.
+    const double eps = 1e-12 * tr + 1e-300;
+    const double a = sxx + eps, b = g.sxy, c = syy + eps;
+    const double det = std::max(a * c - b * b, 1e-30 * a * c);
+    const double ia = c / det, ib = -b / det, ic = a / det, norm = 1.0 / (2.0 * kPi * std::sqrt(det));
+    std::vector<double> brk{0.0};
+    const double rmax = mlen + 8.0 * smax;
+    for (double x : ramp.x())
+        if (x > 0.0 && x < rmax) brk.push_back(x);
+    brk.push_back(rmax);
+    static const double gx[6] = {0.033765242898423989, 0.16939530676686775, 0.38069040695840156,
+                                 0.61930959304159844, 0.83060469323313225, 0.96623475710157601};
+    static const double gw[6] = {0.085662246189585178, 0.18038078652406930, 0.23395696728634552,
+                                 0.23395696728634552, 0.18038078652406930, 0.085662246189585178};
+    constexpr int nphi = 64;
+    double cs[nphi], sn[nphi];
+    for (int k = 0; k < nphi; ++k) cs[k] = std::cos(2 * kPi * k / nphi), sn[k] = std::sin(2 * kPi * k / nphi);
+    std::vector<double> acc(ch, 0.0), col(ch);
+    double mass = 0;
+    for (size_t i = 0; i + 1 < brk.size(); ++i) {
+        const int pieces = std::max(1, int(std::ceil((brk[i + 1] - brk[i]) / (0.5 * smax))));
+        const double len = (brk[i + 1] - brk[i]) / pieces;
+        for (int q = 0; q < pieces; ++q)
+            for (int k = 0; k < 6; ++k) {
+                const double r = brk[i] + len * (q + gx[k]);
+                double pr = 0;
+                for (int j = 0; j < nphi; ++j) {
+                    const double dx = r * cs[j] - g.mx, dy = r * sn[j] - g.my;
+                    pr += std::exp(-0.5 * (ia * dx * dx + 2 * ib * dx * dy + ic * dy * dy));
+                }
+                const double w = gw[k] * len * r * pr * norm * (2 * kPi / nphi);
+                ramp.eval(r, col.data());
+                for (int cc = 0; cc < ch; ++cc) acc[cc] += w * col[cc];
+                mass += w;
+            }
+    }
+    if (!(mass > 0.0)) {
+        smooth_rule();
+        return;
+    }
+    for (int cc = 0; cc < ch; ++cc) out[cc] = acc[cc] / mass;
+}
+
 Vec3 slope_to_normal(double sx, double sy) {
     const double inv = 1.0 / std::sqrt(1.0 + sx * sx + sy * sy);
     return Vec3(float(-sx * inv), float(-sy * inv), float(inv));
