@@ -24,8 +24,25 @@ size_t segment_of(const std::vector<double> &x, double v) {
     return i == 0 ? 0 : std::min(i - 1, x.size() - 2);
 }
 
-/// int_{za}^{zb} z^k phi(z) dz for k = 0, 1, 2 (za <= zb, either may be infinite).
+/// int_{za}^{zb} z^k phi(z) dz for k = 0, 1, 2 (za <= zb, either may be infinite). Narrow
+/// intervals (zb - za < 0.01) use 4-point Gauss-Legendre: the closed forms are differences of
+/// nearly equal CDF values there and lose all precision when sigma dwarfs a ramp segment.
 void normal_partial_moments(double za, double zb, double m[3]) {
+    if (std::isfinite(za) && std::isfinite(zb) && zb - za < 1e-2) {
+        static const double x[4] = {-0.86113631159405258, -0.33998104358485626, 0.33998104358485626,
+                                    0.86113631159405258};
+        static const double w[4] = {0.34785484513745386, 0.65214515486254614, 0.65214515486254614,
+                                    0.34785484513745386};
+        const double c = 0.5 * (za + zb), h = 0.5 * (zb - za);
+        m[0] = m[1] = m[2] = 0.0;
+        for (int i = 0; i < 4; ++i) {
+            const double z = c + h * x[i], f = w[i] * h * std_normal_pdf(z);
+            m[0] += f;
+            m[1] += f * z;
+            m[2] += f * z * z;
+        }
+        return;
+    }
     const double pa = std::isinf(za) ? 0.0 : std_normal_pdf(za), pb = std::isinf(zb) ? 0.0 : std_normal_pdf(zb);
     const double Pa = std_normal_cdf(za), Pb = std_normal_cdf(zb);
     m[0] = Pb - Pa;
@@ -320,7 +337,7 @@ SlopeGaussian visible_slope_gaussian(const SlopeGaussian &p, const Vec3 &wo, dou
     const double sd = std::sqrt(v);
     const double z = (1.0 - a * m) / (a * sd);  // (c - m) / sd, c = 1 / a
     double mu_u, var_u, M0;
-    if (z < -6.0) {
+    if (z < -12.0) {
         // Far below the mesosurface horizon: u = c - x, x ~ Gamma(2, sd / |z|).
         const double c = 1.0 / a;
         mu_u = c - 2.0 * sd / -z;

@@ -34,8 +34,9 @@
 // The projected area towards wo of a micro-facet of slope s = (sx, sy), per unit macro area,
 // is <wo, m> sqrt(1 + |s|^2) = wo.z (1 - s . t) with m = (-sx, -sy, 1)/sqrt(1 + |s|^2) and
 // t = (wo.x, wo.y) / wo.z, so eq. 18's weight max(cos theta_o, 0) w_P dx becomes
-//   D_s(s) = p_s(s) max(0, 1 - s . t) / M0,    M0 = 1 + Lambda_smith(wo)  (the exact Smith
-// normalisation of a non-centred Gaussian; masking is height-only under Smith and cancels).
+//   D_s(s) = p_s(s) max(0, 1 - s . t) / M0,    M0 = (1 - tan(theta_o) mu)(1 + Lambda(wo)) with mu
+// the mean slope along wo's azimuth and Lambda the paper-form GaussianSlopes::lambda (= 1 +
+// Lambda_smith for a centred distribution; masking is height-only under Smith and cancels).
 // Only the component u = s . t_hat along t's direction is reweighted: with u ~ N(m, v),
 // a = |t|, c = 1/a, z = (c - m)/sqrt(v) and the truncated-normal moments
 //   E[u^k 1{u<c}] (k = 0..3, closed forms with Phi(z), phi(z)),
@@ -47,7 +48,8 @@
 //   cov  = Sigma - (Sigma t_hat)(Sigma t_hat)^T (v - var_u) / v^2.
 // D_s is approximated by the Gaussian with these moments (visible_slope_gaussian; verified
 // against 2D quadrature of p_s (1 - s.t)+ in tests/test_transfer_filter.cpp). Where the view is
-// more than 6 standard deviations below the mesosurface (z < -6) the reweighted u follows the
+// more than 12 standard deviations below the mesosurface (z < -12; the closed forms hold to 1e-8
+// down to z = -15) the reweighted u follows the
 // limit c - Gamma(2, sqrt(v)/|z|): mean c - 2 sqrt(v)/|z|, variance 2 v / z^2.
 //
 // Expectations of arbitrary functions of the slope under a 2D Gaussian (slope colour maps that
@@ -150,7 +152,7 @@ HeightFilter height_filter_fit(double sigma_h, double lambda_sum, const HeightFi
 HeightFilter height_filter_exact(double sigma_h, double lambda_sum);
 
 /// height_filter_exact for sigma_h = 1 tabulated over x = ln(1 + Lambda) in [0, ln(1 + 1e8)]
-/// (256 nodes, linear interpolation; max relative error ~1e-4, tested).
+/// (256 nodes, linear interpolation; max error: sigma 1e-4 relative, mu 2e-4 sigma_h, tested).
 class HeightFilterTable {
 public:
     HeightFilterTable();
@@ -166,7 +168,7 @@ private:
 
 /// D_s for view wo (local frame, z = macronormal) and slope distribution p: the Gaussian with the
 /// exact first two moments of p_s(s) (1 - s . t)+ (see the header comment). `norm` (optional)
-/// receives M0 = 1 + Lambda_smith(wo). wo.z is clamped to >= 1e-6.
+/// receives M0, the mass of p_s (1 - s . t)+. wo.z is clamped to >= 1e-6.
 SlopeGaussian visible_slope_gaussian(const SlopeGaussian &p, const Vec3 &wo, double *norm = nullptr);
 
 /// Probabilists' Gauss-Hermite rule for N(0, 1): n nodes (ascending) and weights summing to 1
