@@ -57,12 +57,20 @@
 //                                                  E(n) filtered as a slope colour map, rho/pi <E, D_s>, D_s the
 //                                                  Gaussian visible-slope distribution; env_diffuse_quadrature^2
 //                                                  Gauss-Hermite nodes)
-//   colormap              object      -            colour correlated to the heights or slopes (paper 001 §5), below
+//   colormap              object|array -           colour correlated to the heights or slopes (paper 001 §5), below;
+//                                                  an array combines several terms (§6)
+//   colormap_combine      string      "sum"        "sum": sum of weight x term (the paper's linear combination
+//                                                  kappa_0 C_0 + kappa_1 C_h + kappa_2 C_s); "product": product of
+//                                                  weight x term (its non-linear C_0 C_h C_s)
 //
 // Colour maps on the Gaussian surface (paper 001 §5.1-5.2; render/transfer_filter.h). The colour
 // multiplies both lobes (the paper's assumption that colour and BRDF are uncorrelated). Keys of
 // the "colormap" object:
 //   ramp                  ramp        required     the colour map C (texture/ramp_parse.h)
+//   weight                float       1            the term's weight kappa in a combination
+//   texture               texture     -            instead of ramp/attribute: an uncorrelated term C_0 (§4, e.g. a
+//                                                  `colormap` texture on noise); the BRDF's shadowing G carries
+//                                                  the paper's V-bar factor of C_0 and C_s in the §6 sum
 //   attribute             string      "height"     "height" | "slope_x" | "slope_y" | "steepness" (as `microcolormap`)
 //   filter                string      "gaussian"   "gaussian": <C, D> with D the view- (and light-) dependent
 //                                                  filtering distribution; "naive": C of the footprint's mean
@@ -84,6 +92,7 @@
 #include <cmath>
 #include <optional>
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 #include "render/fresnel.h"
 #include "render/leadr_quadrature.h"
 #include "render/material.h"
@@ -99,11 +108,13 @@
 namespace meso {
 namespace {
 
-enum class ColorAttribute { Height, SlopeX, SlopeY, Steepness };
+enum class ColorAttribute { Height, SlopeX, SlopeY, Steepness, Texture };
 
 /// The "colormap" block (paper 001 §5).
 struct LeadrColormap {
     bool on = false;
+    double weight = 1.0;
+    std::shared_ptr<Texture> texture;  ///< the uncorrelated term C_0 (§6), attribute Texture
     ColorAttribute attr = ColorAttribute::Height;
     std::string attr_name = "height";
     bool filtered = true, exact_height = false;
@@ -138,7 +149,8 @@ struct LeadrParams {
     LeadrShadowing shadowing = LeadrShadowing::Joint;
     int diffuse_n = 12;
     LeadrEnvOptions env_spec, env_diff;
-    LeadrColormap cmap;
+    std::vector<LeadrColormap> cmaps;  ///< one or several (§6), combined by sum or product
+    bool cmap_product = false;
 };
 
 class Leadr final : public Material, public EnvQuadratureShading {
@@ -205,10 +217,10 @@ public:
         Spectrum a(0.f);
         if (m_p.has_spec) a += fresnel_conductor(1.f, m_p.eta, m_p.k) * m_p.ks->eval(ctx);
         if (m_p.has_diffuse) a += m_p.kd->eval(ctx);
-        if (m_p.cmap.on) {
+        if (!m_p.cmaps.empty()) {
             Point pt;
             point(ctx, pt);
-            a *= naive_color(ctx, pt);
+            a *= combine(ctx, pt, [&](const LeadrColormap &c) { return naive_color(ctx, pt, c); });
         }
         return a;
     }
@@ -224,7 +236,7 @@ public:
                 m_p.env_spec);
         }
         if (m_p.has_diffuse) L += leadr_env_diffuse(*pt.g, wo, ctx.frame, m_p.kd->eval(ctx), env, m_p.env_diff);
-        return m_p.cmap.on ? L * color(ctx, pt, wo, 0.0) : L;
+        return m_p.cmaps.empty() ? L : L * color(ctx, pt, wo, 0.0);
     }
 
     std::string to_string() const override {
@@ -234,11 +246,12 @@ public:
         if (!m_p.has_spec) s += ", no specular";
         if (m_p.shadowing == LeadrShadowing::Masking) s += ", masking only";
         if (m_p.rational) s += ", rational Lambda";
-        if (m_p.cmap.on)
-            s += fmt::format(", colormap on {} ({}{})", m_p.cmap.attr_name, m_p.cmap.filtered ? "gaussian" : "naive",
-                             m_p.cmap.attr == ColorAttribute::Height && m_p.cmap.filtered
-                                 ? (m_p.cmap.exact_height ? ", exact D_h" : ", fitted D_h")
-                                 : "");
+        for (const LeadrColormap &c : m_p.cmaps)
+            s += fmt::format(", {}colormap on {} ({}{})", m_p.cmaps.size() > 1 ? fmt::format("{:.3g} x ", c.weight) : "",
+                             c.attr_name, c.filtered ? "gaussian" : "naive",
+                             c.attr == ColorAttribute::Height && c.filtered ? (c.exact_height ? ", exact D_h" : ", fitted D_h")
+                                                                            : "");
+        if (m_p.cmaps.size() > 1) s += m_p.cmap_product ? ", product" : ", sum";
         return s + "]";
     }
 
@@ -275,10 +288,10 @@ private:
         return std::isfinite(pt.lo);
     }
     /// C of the footprint's mean attribute (the "naive" filter, texture filtering of the driver).
-    Spectrum naive_color(const ShadingContext &ctx, const Point &pt) const {
-        const LeadrColormap &c = m_p.cmap;
+    Spectrum naive_color(const ShadingContext &ctx, const Point &pt, const LeadrColormap &c) const {
         const SlopeGaussian &g = pt.g->params();
         switch (c.attr) {
+            case ColorAttribute::Texture: return c.texture->eval(ctx);
             case ColorAttribute::Height: {
                 double mean, var;
                 m_p.source.height_moments(ctx, mean, var);
@@ -289,11 +302,25 @@ private:
             default: return c.at(std::sqrt(g.mx * g.mx + g.my * g.my));
         }
     }
-    /// The colour factor for view wo and light shadowing li = Lambda(wi) (paper 001 §5.1-5.2).
+    /// Sum (weights) or product (weights as exponents are not offered: plain product) of f(c).
+    template <class F>
+    Spectrum combine(const ShadingContext &, const Point &, F f) const {
+        if (m_p.cmaps.empty()) return Spectrum(1.f);
+        Spectrum acc = m_p.cmap_product ? Spectrum(1.f) : Spectrum(0.f);
+        for (const LeadrColormap &c : m_p.cmaps) {
+            if (m_p.cmap_product) acc *= f(c) * float(c.weight);
+            else acc += f(c) * float(c.weight);
+        }
+        return acc;
+    }
+    /// The colour factor for view wo and light shadowing li = Lambda(wi) (paper 001 §5-6).
     Spectrum color(const ShadingContext &ctx, const Point &pt, const Vec3 &wo, double li) const {
-        const LeadrColormap &c = m_p.cmap;
-        if (!c.on) return Spectrum(1.f);
-        if (!c.filtered) return naive_color(ctx, pt);
+        return combine(ctx, pt, [&](const LeadrColormap &c) { return color_one(ctx, pt, wo, li, c); });
+    }
+    Spectrum color_one(const ShadingContext &ctx, const Point &pt, const Vec3 &wo, double li,
+                       const LeadrColormap &c) const {
+        if (c.attr == ColorAttribute::Texture) return c.texture->eval(ctx);
+        if (!c.filtered) return naive_color(ctx, pt, c);
         if (c.attr == ColorAttribute::Height) {
             double mean, var;
             m_p.source.height_moments(ctx, mean, var);
@@ -360,10 +387,18 @@ int parse_grid(const Properties &p, const char *key, int def) {
     return n;
 }
 
-LeadrColormap parse_colormap(const Properties &parent, SlopeSource &source) {
+LeadrColormap parse_colormap(const Properties &p, SlopeSource &source) {
     LeadrColormap c;
-    const Properties p = parent.child("colormap");
     c.on = true;
+    c.weight = p.get_float("weight", 1.f);
+    if (!std::isfinite(c.weight)) p.fail("weight", "expected a finite number");
+    if (p.has("texture")) {  // the uncorrelated term C_0 of §6: any texture (e.g. a `colormap` texture)
+        c.texture = p.get_texture("texture");
+        c.attr = ColorAttribute::Texture;
+        c.attr_name = "texture";
+        p.check_unused("leadr colormap term");
+        return c;
+    }
     c.ramp = parse_ramp(p, "ramp", 3);
     c.attr_name = p.get_string("attribute", "height");
     if (c.attr_name == "height") c.attr = ColorAttribute::Height;
@@ -442,7 +477,20 @@ std::shared_ptr<Material> make_leadr(const Properties &p) {
     else if (irr == "paper") lp.env_diff.irradiance = LeadrIrradiance::Paper;
     else if (irr == "gaussian") lp.env_diff.irradiance = LeadrIrradiance::Gaussian;
     else p.fail("env_irradiance", fmt::format("expected \"shadowed\", \"paper\" or \"gaussian\", got \"{}\"", irr));
-    if (p.has("colormap")) lp.cmap = parse_colormap(p, lp.source);
+    if (p.has("colormap")) {
+        if (p.raw("colormap").is_array()) {
+            for (const Properties &c : p.children("colormap")) lp.cmaps.push_back(parse_colormap(c, lp.source));
+            if (lp.cmaps.empty()) p.fail("colormap", "expected at least one colour map");
+        } else {
+            lp.cmaps.push_back(parse_colormap(p.child("colormap"), lp.source));
+        }
+        const std::string comb = p.get_string("colormap_combine", "sum");
+        if (comb == "sum") lp.cmap_product = false;
+        else if (comb == "product") lp.cmap_product = true;
+        else p.fail("colormap_combine", fmt::format("expected \"sum\" or \"product\", got \"{}\"", comb));
+    } else if (p.has("colormap_combine")) {
+        p.fail("colormap_combine", "only meaningful with \"colormap\"");
+    }
     for (LeadrEnvOptions *o : {&lp.env_spec, &lp.env_diff}) {
         o->shadowing = lp.shadowing;
         o->rational_lambda = lp.rational;

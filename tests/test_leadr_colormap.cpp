@@ -297,3 +297,39 @@ TEST(LeadrEnvGaussian, ConstantEnvironmentGivesTheAlbedo) {
         EXPECT_NEAR(L.b, 0.15, 0.15 * 0.02) << to;
     }
 }
+
+TEST(LeadrColormap, CombinationsAreSumsAndProductsOfTheTerms) {
+    // §6: kappa_0 C_0 + kappa_1 C_h + kappa_2 C_s (sum) and C_0 C_h C_s (product), each term
+    // filtered on its own; checked against materials with one term each.
+    const std::string h = std::string(R"({"ramp": )") + kRamp + R"(, "height_mean": 0.002, "height_sigma": 0.01)";
+    const std::string sl = R"({"attribute": "slope_x", "ramp": [[-0.5, [1, 0, 0]], [0.5, [0, 0, 1]]])";
+    const std::string t0 = R"({"texture": [0.2, 0.4, 0.6])";
+    auto one = [&](const std::string &term) {
+        return make_material(R"({"type": "leadr", "covariance": [0.1, 0.1, 0], "specular_reflectance": 0,
+            "diffuse_reflectance": 1, "colormap": )" + term + "}");
+    };
+    auto many = [&](const std::string &comb, const std::string &w) {
+        return make_material(R"({"type": "leadr", "covariance": [0.1, 0.1, 0], "specular_reflectance": 0,
+            "diffuse_reflectance": 1, "colormap_combine": ")" + comb + R"(", "colormap": [)" + t0 + ", \"weight\": " + w +
+                             "}, " + h + ", \"weight\": " + w + "}, " + sl + ", \"weight\": " + w + "}]}");
+    };
+    auto without = make_material(plain_json());
+    auto a = one(t0 + "}"), b = one(h + "}"), c = one(sl + "}");
+    auto sum = many("sum", "0.3"), prod = many("product", "1");
+    for (double to : {0.0, 60.0, 80.0}) {
+        const Vec3 wo = dir_deg(to, 0), wi = dir_deg(40, 180);
+        const Spectrum fa = color_factor(*a, *without, wo, wi), fb = color_factor(*b, *without, wo, wi),
+                       fc = color_factor(*c, *without, wo, wi);
+        const Spectrum fs = color_factor(*sum, *without, wo, wi), fp = color_factor(*prod, *without, wo, wi);
+        for (int k = 0; k < 3; ++k) {
+            EXPECT_NEAR(fs[k], 0.3 * (fa[k] + fb[k] + fc[k]), 1e-5) << to << " " << k;
+            EXPECT_NEAR(fp[k], fa[k] * fb[k] * fc[k], 1e-5) << to << " " << k;
+        }
+    }
+    try {
+        make_material(R"({"type": "leadr", "covariance": [0.1, 0.1, 0], "colormap_combine": "max", "colormap": [)" + t0 + "}]}");
+        ADD_FAILURE() << "no error";
+    } catch (const MesoError &e) {
+        EXPECT_NE(std::string(e.what()).find("colormap_combine"), std::string::npos) << e.what();
+    }
+}
