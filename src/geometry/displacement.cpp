@@ -4,7 +4,9 @@
 #include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "geometry/heightmap_gen.h"
+#include "render/transfer_filter.h"
 #include "scene/properties.h"
+#include "texture/ramp_parse.h"
 
 namespace meso {
 
@@ -39,7 +41,7 @@ std::map<std::string, std::string> generator_params(const Properties &g) {
 
 }  // namespace
 
-Displacement parse_displacement(const Properties &p, size_t max_triangles) {
+Displacement parse_displacement(const Properties &p, size_t max_triangles, bool apply_transfer) {
     Displacement d;
     d.max_triangles = max_triangles ? max_triangles : kDefaultMaxTriangles;
     if (!p.has("map"))
@@ -62,6 +64,19 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles) {
         d.source = "generator " + kind;
     } else {
         p.fail("map", fmt::format("expected a file name or a generator object, got {}", json_type_name(m)));
+    }
+
+    if (p.has("transfer")) {
+        // parse_ramp names the key (and the stop) in its errors; one channel: a height per value.
+        d.transfer = std::make_shared<const Ramp>(parse_ramp(p, "transfer", 1));
+        d.source += " through transfer " + d.transfer->to_string();
+        if (apply_transfer) {
+            for (float &v : map.h) {
+                double g;
+                d.transfer->eval(double(v), &g);
+                v = float(g);
+            }
+        }
     }
 
     const float scale = p.get_float("scale", 1.f), offset = p.get_float("offset", 0.f);
@@ -96,7 +111,12 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles) {
         if (d.level < -1 || d.level > 15) p.fail("level", fmt::format("expected -1 (automatic) or 0..15, got {}", d.level));
     }
     try {
-        d.field = std::make_shared<Heightfield>(map, scale, offset);
+        if (d.transfer && !apply_transfer) {
+            d.field = std::make_shared<Heightfield>(map, 1.f, 0.f);
+            d.field_untransferred = true;
+        } else {
+            d.field = std::make_shared<Heightfield>(map, scale, offset);
+        }
     } catch (const MesoError &e) {
         p.fail("map", e.what());
     }

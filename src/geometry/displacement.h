@@ -1,6 +1,11 @@
 // A shape's "displacement" block: a heightfield over the shape's uv parameterisation,
 // traced exactly through a shell map (mode "shell") or refined into triangles with
 // OpenSubdiv (mode "tessellate"). See docs/scene-format.md, "displacement".
+//
+// Height transfer functions (paper 001 §7): "transfer": a one-channel ramp g (texture/ramp_parse.h)
+// applied to every map value before scale and offset, field = offset + scale * g(map): the exact
+// micro-geometry h = g(f) of a grey function f (noise, a generated map) reshaped by a non-linear
+// curve (plateaus, clipping). g is piecewise linear, constant beyond its first and last stop.
 #pragma once
 #include <memory>
 #include <string>
@@ -10,6 +15,7 @@
 namespace meso {
 
 class Properties;
+class Ramp;
 struct TriangleMesh;
 
 enum class DisplacementMode { Shell, Tessellate };
@@ -20,10 +26,15 @@ enum class SubdivScheme { Bilinear, CatmullClark };
 constexpr size_t kDefaultMaxTriangles = size_t(64) << 20;
 
 struct Displacement {
-    std::shared_ptr<const Heightfield> field;  ///< heights in world units (offset + scale * map)
+    /// Heights in world units, offset + scale * g(map) (g the identity without "transfer"); from
+    /// parse_displacement(..., apply_transfer = false) with a transfer: the untransformed map f
+    /// itself (map units: scale 1, offset 0), see field_untransferred.
+    std::shared_ptr<const Heightfield> field;
+    std::shared_ptr<const Ramp> transfer;      ///< g of "transfer" (one channel), or null
+    bool field_untransferred = false;          ///< field holds f in map units; world = offset + scale * g(f)
     std::string source;                        ///< map file or generator, for messages and --plan
     float tiling_u = 1.f, tiling_v = 1.f;      ///< repeats of the map over uv [0,1]
-    float scale = 1.f, offset = 0.f;           ///< field = offset + scale * map (for LoD maps in map units)
+    float scale = 1.f, offset = 0.f;           ///< field = offset + scale * g(map) (for LoD maps in map units)
     DisplacementMode mode = DisplacementMode::Shell;
     SubdivScheme scheme = SubdivScheme::Bilinear;
     int level = -1;                     ///< tessellation level; -1: to the map's resolution
@@ -39,8 +50,11 @@ struct Displacement {
     }
 };
 
-/// Reads the "displacement" object `p` (map | generator, scale, offset, tiling, mode,
+/// Reads the "displacement" object `p` (map | generator, transfer, scale, offset, tiling, mode,
 /// scheme, level); `max_triangles` comes from the command line (--max-triangles).
-Displacement parse_displacement(const Properties &p, size_t max_triangles);
+/// apply_transfer = false (for filtering g on the statistics of f, texture/slope_source.h): with a
+/// "transfer", field is the map f itself in map units (scale 1, offset 0, g not applied) and
+/// field_untransferred is set; without one it changes nothing.
+Displacement parse_displacement(const Properties &p, size_t max_triangles, bool apply_transfer = true);
 
 }  // namespace meso

@@ -1,8 +1,11 @@
 #include "texture/slope_source.h"
+#include <algorithm>
 #include <cmath>
 #include <fmt/format.h>
 #include "geometry/displacement.h"
+#include "core/error.h"
 #include "geometry/heightfield.h"
+#include "render/transfer_filter.h"
 #include "scene/properties.h"
 
 namespace meso {
@@ -24,18 +27,51 @@ SlopeSource::SlopeSource(const Heightfield &field, float tiling_u, float tiling_
     m_hmip = std::make_shared<MipMap>(build_height_moments(field, m_hcenter));
 }
 
+void SlopeSource::map_height_moments(const ShadingContext &ctx, double &mean, double &variance) const {
+    float m[2];
+    const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
+    m_hmip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, m, m_max_aniso);
+    mean = m_hcenter + m[0];
+    variance = std::max(0.0, double(m[1]) - double(m[0]) * m[0]);
+}
+
 bool SlopeSource::height_moments(const ShadingContext &ctx, double &mean, double &variance) const {
     if (!m_hmip) {
         mean = m_const_hmean;
         variance = m_const_hvar;
         return m_has_const_h;
     }
-    float m[2];
-    const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
-    m_hmip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, m, m_max_aniso);
-    mean = m_hcenter + m[0];
-    variance = std::max(0.0, double(m[1]) - double(m[0]) * m[0]);
+    map_height_moments(ctx, mean, variance);
+    if (m_transfer) {
+        const TransferMoments t = transfer_moments(*m_transfer, mean, std::sqrt(variance));
+        mean = m_toffset + m_tscale * t.g;
+        variance = m_tscale * m_tscale * std::max(0.0, t.g2 - t.g * t.g);
+    }
     return true;
+}
+
+void SlopeSource::set_height_transfer(std::shared_ptr<const Ramp> g, double scale, double offset) {
+    if (!m_mip) throw MesoError("SlopeSource: a height transfer needs a map source");
+    if (!g || g->channels() != 1) throw MesoError("SlopeSource: the height transfer must be a one-channel ramp");
+    m_transfer = std::move(g);
+    m_tscale = scale;
+    m_toffset = offset;
+}
+
+void SlopeSource::apply_transfer(const float fm[SlopeMomentCount], double f_mean, double f_var,
+                                 float out[SlopeMomentCount], double *h_mean, double *h_var) const {
+    const TransferMoments t = transfer_moments(*m_transfer, f_mean, std::sqrt(std::max(0.0, f_var)));
+    // f's texture-space slope Gaussian (J = identity), eq. 24-26, then the world height scale.
+    const TransferredStatistics ts = transferred_statistics(t, slope_gaussian(fm, 1, 0, 0, 1));
+    const double k = m_tscale;
+    const double mx = k * ts.slopes.mx, my = k * ts.slopes.my;
+    out[MomentX] = float(mx);
+    out[MomentY] = float(my);
+    out[MomentXX] = float(k * k * ts.slopes.sxx + mx * mx);
+    out[MomentYY] = float(k * k * ts.slopes.syy + my * my);
+    out[MomentXY] = float(k * k * ts.slopes.sxy + mx * my);
+    if (h_mean) *h_mean = m_toffset + k * ts.h_mean;
+    if (h_var) *h_var = k * k * ts.h_var;
 }
 
 void SlopeSource::set_constant_height(double mean, double sigma) {
@@ -45,7 +81,7 @@ void SlopeSource::set_constant_height(double mean, double sigma) {
 }
 
 bool SlopeSource::present(const Properties &p) {
-    for (const char *k : {"heightmap", "mean_slope", "covariance", "filter", "max_anisotropy"})
+    for (const char *k : {"heightmap", "mean_slope", "covariance", "filter", "max_anisotropy", "transfer_filter"})
         if (p.has(k)) return true;
     return false;
 }
@@ -54,7 +90,16 @@ SlopeSource SlopeSource::parse(const Properties &p) {
     if (p.has("heightmap")) {
         for (const char *k : {"mean_slope", "covariance"})
             if (p.has(k)) p.fail(k, "give either \"heightmap\" (statistics from a map) or constant statistics, not both");
-        Displacement d = parse_displacement(p.child("heightmap"), 0);
+        const Properties hp = p.child("heightmap");
+        const std::string tf = p.get_string("transfer_filter", "exact");
+        if (tf != "exact" && tf != "gaussian")
+            p.fail("transfer_filter", fmt::format("expected \"exact\" or \"gaussian\", got \"{}\"", tf));
+        if (p.has("transfer_filter") && !hp.has("transfer"))
+            p.fail("transfer_filter", "only meaningful with a \"transfer\" (a height transfer function g) in the "
+                                      "\"heightmap\" block");
+        const bool gaussian = tf == "gaussian";
+        // "gaussian": the pyramids of the untransformed f (map units); g is applied per footprint.
+        Displacement d = parse_displacement(hp, 0, /*apply_transfer=*/!gaussian);
         Filter filter = Filter::Trilinear;
         const std::string f = p.get_string("filter", "trilinear");
         if (f == "trilinear") filter = Filter::Trilinear;
@@ -63,9 +108,11 @@ SlopeSource SlopeSource::parse(const Properties &p) {
         else p.fail("filter", fmt::format("expected \"trilinear\", \"ewa\" or \"none\", got \"{}\"", f));
         const float aniso = p.get_float("max_anisotropy", 8.f);
         if (!(aniso >= 1.f) || !std::isfinite(aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
-        return SlopeSource(*d.field, d.tiling_u, d.tiling_v, filter, aniso, d.source);
+        SlopeSource src(*d.field, d.tiling_u, d.tiling_v, filter, aniso, d.source);
+        if (gaussian) src.set_height_transfer(d.transfer, d.scale, d.offset);
+        return src;
     }
-    for (const char *k : {"filter", "max_anisotropy"})
+    for (const char *k : {"filter", "max_anisotropy", "transfer_filter"})
         if (p.has(k)) p.fail(k, "only meaningful with a \"heightmap\"");
     SlopeGaussian g;
     if (p.has("mean_slope")) {
@@ -95,7 +142,16 @@ void SlopeSource::moments(const ShadingContext &ctx, float out[SlopeMomentCount]
         return;
     }
     const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
-    m_mip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, out, m_max_aniso);
+    if (!m_transfer) {
+        m_mip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, out,
+                      m_max_aniso);
+        return;
+    }
+    float fm[SlopeMomentCount];
+    m_mip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, fm, m_max_aniso);
+    double f_mean, f_var;
+    map_height_moments(ctx, f_mean, f_var);
+    apply_transfer(fm, f_mean, f_var, out, nullptr, nullptr);
 }
 
 SlopeGaussian SlopeSource::eval(const ShadingContext &ctx) const {
@@ -115,6 +171,12 @@ SlopeGaussian SlopeSource::mean_over_map() const {
     if (!m_mip) return m_const;
     float m[SlopeMomentCount];
     m_mip->level_mean(0, m);
+    if (m_transfer) {
+        float hm[2], fm[SlopeMomentCount];
+        m_hmip->level_mean(0, hm);
+        std::copy(m, m + SlopeMomentCount, fm);
+        apply_transfer(fm, m_hcenter + hm[0], double(hm[1]) - double(hm[0]) * hm[0], m, nullptr, nullptr);
+    }
     return slope_gaussian(m, 1, 0, 0, 1);
 }
 
@@ -123,8 +185,12 @@ std::string SlopeSource::to_string() const {
         return fmt::format("mean slope ({:.4g}, {:.4g}), covariance ({:.4g}, {:.4g}, {:.4g})", m_const.mx, m_const.my,
                            m_const.sxx, m_const.syy, m_const.sxy);
     static const char *filters[] = {"trilinear", "ewa", "none"};
-    return fmt::format("slope moments of {} ({}x{}, tiling {}x{}, {} filter, {:.2f} MB)", m_source, m_mip->width(),
-                       m_mip->height(), m_tu, m_tv, filters[int(m_filter)], m_mip->memory_bytes() / 1048576.0);
+    return fmt::format("slope moments of {} ({}x{}, tiling {}x{}, {} filter{}, {:.2f} MB)", m_source, m_mip->width(),
+                       m_mip->height(), m_tu, m_tv, filters[int(m_filter)],
+                       m_transfer ? fmt::format(", gaussian transfer filter (paper 001 §7), h = {:.4g} + {:.4g} g(f)",
+                                                m_toffset, m_tscale)
+                                  : std::string(),
+                       m_mip->memory_bytes() / 1048576.0);
 }
 
 }  // namespace meso
