@@ -14,6 +14,7 @@
 #include "scene/properties.h"
 #include "scene/registry.h"
 #include "scratch_dir.h"
+#include "texture_test_util.h"
 
 using namespace meso;
 using json = nlohmann::json;
@@ -22,27 +23,11 @@ namespace {
 
 std::string tmp_dir() { return meso::test::scratch_dir("meso_test_colormap"); }
 
-std::shared_ptr<Texture> make_texture(const json &j) {
-    auto ctx = std::make_shared<LoadContext>();
-    ctx->file = "scene.json";
-    ctx->base_dir = tmp_dir();
-    return create_texture(Properties(j, "textures.tex", ctx));
-}
-
-std::string texture_error(const json &j) {
-    try {
-        make_texture(j);
-    } catch (const MesoError &e) {
-        return e.what();
-    }
-    return "(no error)";
-}
+std::shared_ptr<Texture> make_texture(const json &j) { return meso::test::make_texture_in(tmp_dir(), j); }
+std::string texture_error(const json &j) { return meso::test::texture_error_in(tmp_dir(), j); }
 
 ShadingContext at(double u, double v, double dudx = 0, double dudy = 0, double dvdx = 0, double dvdy = 0) {
-    ShadingContext ctx;
-    ctx.uv = Vec2(float(u), float(v));
-    ctx.dudx = float(dudx), ctx.dudy = float(dudy), ctx.dvdx = float(dvdx), ctx.dvdy = float(dvdy);
-    return ctx;
+    return meso::test::uv_context(u, v, dudx, dudy, dvdx, dvdy);
 }
 
 /// A float EXR of w x h grey values.

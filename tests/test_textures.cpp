@@ -4,6 +4,7 @@
 // error messages for missing or malformed files.
 #include <gtest/gtest.h>
 #include "scratch_dir.h"
+#include "texture_test_util.h"
 #include <OpenImageIO/imageio.h>
 #include <filesystem>
 #include <fstream>
@@ -32,27 +33,11 @@ std::shared_ptr<LoadContext> scene_ctx() {
     return ctx;
 }
 
-std::shared_ptr<Texture> make_texture(const json &j) {
-    return create_texture(Properties(j, "textures.tex", scene_ctx()));
-}
-
-std::string texture_error(const json &j) {
-    try {
-        make_texture(j);
-    } catch (const MesoError &e) {
-        return e.what();
-    }
-    return "(no error)";
-}
+std::shared_ptr<Texture> make_texture(const json &j) { return meso::test::make_texture_in(tmp_dir(), j); }
+std::string texture_error(const json &j) { return meso::test::texture_error_in(tmp_dir(), j); }
 
 ShadingContext at(float u, float v, float dudx = 0, float dudy = 0, float dvdx = 0, float dvdy = 0) {
-    ShadingContext ctx;
-    ctx.uv = Vec2(u, v);
-    ctx.dudx = dudx;
-    ctx.dudy = dudy;
-    ctx.dvdx = dvdx;
-    ctx.dvdy = dvdy;
-    return ctx;
+    return meso::test::uv_context(u, v, dudx, dudy, dvdx, dvdy);
 }
 
 /// Writes w x h x c values with OpenImageIO (float EXR, or 8-bit for .png).

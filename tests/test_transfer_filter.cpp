@@ -9,6 +9,7 @@
 // The fit of eq. 16-17 is measured against the exact moments and the table printed (it goes into
 // the README); its assertion is a regression guard just above the measured error.
 #include <gtest/gtest.h>
+#include "material_test_util.h"
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -21,6 +22,7 @@
 
 
 using namespace meso;
+using meso::test::dir_deg;
 
 namespace {
 
@@ -199,16 +201,8 @@ double theta_of_lambda(double L, double s2) {
 
 // ------------------------------------------------------------ reference visible slopes
 
-SlopeGaussian make(double mx, double my, double sxx, double syy, double sxy) {
-    SlopeGaussian g;
-    g.mx = mx, g.my = my, g.sxx = sxx, g.syy = syy, g.sxy = sxy;
-    return g;
-}
+SlopeGaussian make(double mx, double my, double sxx, double syy, double sxy) { return {mx, my, sxx, syy, sxy}; }
 
-Vec3 dir_deg(double theta, double phi) {
-    const double t = theta * kPi / 180, p = phi * kPi / 180;
-    return Vec3(float(std::sin(t) * std::cos(p)), float(std::sin(t) * std::sin(p)), float(std::cos(t)));
-}
 
 /// The moments of p_s(s) max(0, 1 - s.t) by 2D Simpson. The integrand is the plain 2D Gaussian
 /// density times the weight, evaluated at s; only the grid is laid out in the frame (u, w) of

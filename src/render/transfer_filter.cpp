@@ -96,30 +96,17 @@ void Ramp::derivative(double v, double *out) const {
 
 // The closed forms below integrate a polynomial of v over each piece against N(mean, sigma^2):
 // with z = (v - mean) / sigma, v = mean + sigma z, so any polynomial in v is one in z and the
-// partial moments of phi do the rest. Pieces: (-inf, x0] (constant), the segments, [xn, inf).
-void Ramp::gaussian_average(double mean, double sigma, double *out) const {
-    if (!(sigma > 0.0) || !std::isfinite(sigma) || !std::isfinite(mean)) {
-        if (std::isfinite(sigma) && sigma > 0.0) {  // mean infinite
-            eval(mean, out);
-            return;
-        }
-        if (std::isinf(sigma)) {  // the average over the whole line: the mean of the two ends
-            const size_t n = m_x.size();
-            for (int c = 0; c < m_ch; ++c) out[c] = 0.5 * (m_v[c] + m_v[(n - 1) * m_ch + c]);
-            return;
-        }
-        eval(mean, out);
-        return;
-    }
+// partial moments of phi do the rest. Pieces: (-inf, x0] and [xn, inf) (constant: beta = 0) and
+// the segments. `piece(m, alpha, beta, c)` adds channel c's integral of a function of
+// alpha + beta sigma z (the ramp's value, alpha at v = mean) given m = int z^k phi, k = 0..2.
+template <class Piece>
+void Ramp::for_each_piece(double mean, double sigma, Piece piece) const {
     const size_t n = m_x.size();
-    for (int c = 0; c < m_ch; ++c) out[c] = 0.0;
     double m[3];
-    const double z0 = (m_x.front() - mean) / sigma;
-    normal_partial_moments(-INFINITY, z0, m);
-    for (int c = 0; c < m_ch; ++c) out[c] += m_v[c] * m[0];
-    const double zn = (m_x.back() - mean) / sigma;
-    normal_partial_moments(zn, INFINITY, m);
-    for (int c = 0; c < m_ch; ++c) out[c] += m_v[(n - 1) * m_ch + c] * m[0];
+    normal_partial_moments(-INFINITY, (m_x.front() - mean) / sigma, m);
+    for (int c = 0; c < m_ch; ++c) piece(m, m_v[c], 0.0, c);
+    normal_partial_moments((m_x.back() - mean) / sigma, INFINITY, m);
+    for (int c = 0; c < m_ch; ++c) piece(m, m_v[(n - 1) * m_ch + c], 0.0, c);
     for (size_t i = 0; i + 1 < n; ++i) {
         const double za = (m_x[i] - mean) / sigma, zb = (m_x[i + 1] - mean) / sigma;
         if (zb < -40.0 || za > 40.0) continue;
@@ -127,10 +114,25 @@ void Ramp::gaussian_average(double mean, double sigma, double *out) const {
         const double dx = m_x[i + 1] - m_x[i];
         for (int c = 0; c < m_ch; ++c) {
             const double beta = (m_v[(i + 1) * m_ch + c] - m_v[i * m_ch + c]) / dx;
-            const double alpha = m_v[i * m_ch + c] + beta * (mean - m_x[i]);  // value at v = mean
-            out[c] += alpha * m[0] + beta * sigma * m[1];
+            piece(m, m_v[i * m_ch + c] + beta * (mean - m_x[i]), beta, c);
         }
     }
+}
+
+void Ramp::gaussian_average(double mean, double sigma, double *out) const {
+    if (std::isinf(sigma) && sigma > 0) {  // the average over the whole line: the mean of the two ends
+        const size_t n = m_x.size();
+        for (int c = 0; c < m_ch; ++c) out[c] = 0.5 * (m_v[c] + m_v[(n - 1) * m_ch + c]);
+        return;
+    }
+    if (!(sigma > 0.0) || !std::isfinite(sigma) || !std::isfinite(mean)) {
+        eval(mean, out);
+        return;
+    }
+    for (int c = 0; c < m_ch; ++c) out[c] = 0.0;
+    for_each_piece(mean, sigma, [&](const double *m, double alpha, double beta, int c) {
+        out[c] += alpha * m[0] + beta * sigma * m[1];
+    });
 }
 
 void Ramp::gaussian_average_square(double mean, double sigma, double *out) const {
@@ -143,30 +145,15 @@ void Ramp::gaussian_average_square(double mean, double sigma, double *out) const
         }
         return;
     }
-    const size_t n = m_x.size();
     for (int c = 0; c < m_ch; ++c) out[c] = 0.0;
-    double m[3];
-    normal_partial_moments(-INFINITY, (m_x.front() - mean) / sigma, m);
-    for (int c = 0; c < m_ch; ++c) out[c] += m_v[c] * m_v[c] * m[0];
-    normal_partial_moments((m_x.back() - mean) / sigma, INFINITY, m);
-    for (int c = 0; c < m_ch; ++c) out[c] += m_v[(n - 1) * m_ch + c] * m_v[(n - 1) * m_ch + c] * m[0];
-    for (size_t i = 0; i + 1 < n; ++i) {
-        const double za = (m_x[i] - mean) / sigma, zb = (m_x[i + 1] - mean) / sigma;
-        if (zb < -40.0 || za > 40.0) continue;
-        normal_partial_moments(za, zb, m);
-        const double dx = m_x[i + 1] - m_x[i];
-        for (int c = 0; c < m_ch; ++c) {
-            const double beta = (m_v[(i + 1) * m_ch + c] - m_v[i * m_ch + c]) / dx;
-            const double alpha = m_v[i * m_ch + c] + beta * (mean - m_x[i]);
-            // (alpha + beta sigma z)^2
-            out[c] += alpha * alpha * m[0] + 2 * alpha * beta * sigma * m[1] + beta * beta * sigma * sigma * m[2];
-        }
-    }
+    for_each_piece(mean, sigma, [&](const double *m, double alpha, double beta, int c) {
+        const double b = beta * sigma;  // (alpha + b z)^2
+        out[c] += alpha * alpha * m[0] + 2 * alpha * b * m[1] + b * b * m[2];
+    });
 }
 
 void Ramp::gaussian_average_derivative(double mean, double sigma, int power, double *out) const {
     if (power != 1 && power != 2) throw MesoError("Ramp::gaussian_average_derivative: power must be 1 or 2");
-    const size_t n = m_x.size();
     for (int c = 0; c < m_ch; ++c) out[c] = 0.0;
     if (!(sigma > 0.0) || !std::isfinite(sigma) || !std::isfinite(mean)) {
         if (std::isfinite(mean) && !(sigma > 0.0)) {
@@ -176,17 +163,9 @@ void Ramp::gaussian_average_derivative(double mean, double sigma, int power, dou
         }
         return;  // infinite sigma or mean: the derivative's support is bounded, the average is 0
     }
-    double m[3];
-    for (size_t i = 0; i + 1 < n; ++i) {
-        const double za = (m_x[i] - mean) / sigma, zb = (m_x[i + 1] - mean) / sigma;
-        if (zb < -40.0 || za > 40.0) continue;
-        normal_partial_moments(za, zb, m);
-        const double dx = m_x[i + 1] - m_x[i];
-        for (int c = 0; c < m_ch; ++c) {
-            const double beta = (m_v[(i + 1) * m_ch + c] - m_v[i * m_ch + c]) / dx;
-            out[c] += (power == 1 ? beta : beta * beta) * m[0];
-        }
-    }
+    for_each_piece(mean, sigma, [&](const double *m, double, double beta, int c) {
+        out[c] += (power == 1 ? beta : beta * beta) * m[0];  // the tails have beta = 0
+    });
 }
 
 std::string Ramp::to_string() const {

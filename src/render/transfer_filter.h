@@ -105,6 +105,8 @@ public:
     std::string to_string() const;
 
 private:
+    template <class Piece>
+    void for_each_piece(double mean, double sigma, Piece piece) const;
     std::vector<double> m_x, m_v;
     int m_ch = 0;
 };

@@ -119,6 +119,7 @@
 #include "core/math.h"
 #include "image/image.h"
 #include "render/texture.h"
+#include "texture/image_param.h"
 #include "render/transfer_filter.h"
 #include "sampling/rng.h"
 #include "scene/properties.h"
@@ -536,15 +537,7 @@ std::unique_ptr<Driver> make_image(const Properties &p) {
     if (!(max_anisotropy >= 1.f && std::isfinite(max_anisotropy)))
         p.fail("max_anisotropy", "expected a finite number >= 1");
 
-    Image img;
-    try {
-        img = read_image(file, !raw);
-    } catch (const MesoError &e) {
-        p.fail("filename", e.what());
-    }
-    if (img.width <= 0 || img.height <= 0 || img.channels <= 0 ||
-        img.data.size() != size_t(img.width) * img.height * img.channels)
-        p.fail("filename", fmt::format("{}: empty or malformed image", file));
+    const Image img = read_image_param(p, "filename", file, raw);
     // Grey: channel 0 of 1- and 2-channel (grey + alpha) images, the RGB average otherwise.
     const int nc = img.channels <= 2 ? 1 : 3;
     std::vector<double> f(size_t(img.width) * img.height);

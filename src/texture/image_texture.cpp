@@ -31,6 +31,7 @@
 #include "core/error.h"
 #include "image/image.h"
 #include "render/texture.h"
+#include "texture/image_param.h"
 #include "scene/properties.h"
 #include "scene/registry.h"
 #include "texture/mipmap.h"
@@ -124,15 +125,7 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         tiling = Vec2(t[0], t[1]);
     }
 
-    Image img;
-    try {
-        img = read_image(file, !raw);
-    } catch (const MesoError &e) {
-        p.fail("filename", e.what());
-    }
-    if (img.width <= 0 || img.height <= 0 || img.channels <= 0 ||
-        img.data.size() != size_t(img.width) * img.height * img.channels)
-        p.fail("filename", fmt::format("{}: empty or malformed image", file));
+    const Image img = read_image_param(p, "filename", file, raw);
     // Keep 1 channel for grey (+alpha) images, RGB otherwise.
     int nc = img.channels <= 2 ? 1 : 3;
     std::vector<float> data(size_t(img.width) * img.height * nc);

@@ -5,6 +5,7 @@
 #include "core/error.h"
 #include "image/image.h"
 #include "scene/properties.h"
+#include "texture/image_param.h"
 
 namespace meso {
 
@@ -49,13 +50,7 @@ Ramp parse_image(const Properties &p, const std::string &key, int channels) {
         c.fail("range", "expected [min, max] with min < max");
     const bool raw = c.get_bool("raw", false);
     c.check_unused("colour map image");
-    Image img;
-    try {
-        img = read_image(file, !raw);
-    } catch (const MesoError &e) {
-        c.fail("filename", e.what());
-    }
-    if (img.width < 1 || img.height < 1) c.fail("filename", "empty image");
+    const Image img = read_image_param(c, "filename", file, raw);
     const int row = img.height / 2;
     std::vector<double> xs, vs;
     for (int i = 0; i < img.width; ++i) {
