@@ -13,6 +13,9 @@
 #include "geometry/displacement.h"
 #include "geometry/heightfield.h"
 #include "geometry/heightmap_gen.h"
+#include "geometry/shell_shape.h"
+#include "render_test_util.h"
+#include "scene/scene.h"
 #include "render/transfer_filter.h"
 #include "sampling/rng.h"
 #include "scene/properties.h"
@@ -391,3 +394,78 @@ TEST(HeightTransfer, ErrorsNameTheKey) {
     }
 }
 
+
+// §7 "displaced geometry uses g-bar": transfer_downsampled's vertex = E[g] under the block's
+// Gaussian statistics of f. Checked against the exact block average of g(f) (the box-downsampled
+// transferred map, an independent path): at factor 1 they agree exactly; at coarse factors the
+// Gaussian stand-in for the block's histogram of f is the only approximation (measured below).
+TEST(HeightTransfer, GBarDownsamplingMatchesTheBlockAverageOfGOfF) {
+    const GeneratedMap m = gen_map();
+    Ramp g = parse_ramp(props(std::string(R"({"t": )") + kMoss + "}"), "t", 1);
+    Ramp identity({-1.0, 1.0}, {-1.0, 1.0}, 1);
+    HeightMap gf = m.height;
+    for (float &v : gf.h) {
+        double x;
+        g.eval(v, &x);
+        v = float(x);
+    }
+    const Heightfield gf_field(gf, 1.f, 0.f), f_field(m.height, 1.f, 0.f);
+    // factor 1: g at each vertex
+    const HeightMap one = transfer_downsampled(m.height, g, 1);
+    for (size_t k = 0; k < one.h.size(); ++k) ASSERT_NEAR(one.h[k], gf.h[k], 1e-6f);
+    // identity g: the box-downsampled f
+    const HeightMap id8 = transfer_downsampled(m.height, identity, 8), box8 = f_field.box_downsampled(8);
+    for (size_t k = 0; k < id8.h.size(); ++k) ASSERT_NEAR(id8.h[k], box8.h[k], 1e-6f);
+    // coarse factors: |g-bar - mean of g(f)| relative to the range of g (0.012)
+    for (int factor : {8, 32, 128}) {
+        const HeightMap gbar = transfer_downsampled(m.height, g, factor), exact = gf_field.box_downsampled(factor);
+        double worst = 0, rms = 0, naive_rms = 0;
+        const HeightMap fbox = f_field.box_downsampled(factor);
+        for (size_t k = 0; k < gbar.h.size(); ++k) {
+            const double e = std::abs(double(gbar.h[k]) - exact.h[k]);
+            worst = std::max(worst, e);
+            rms += e * e;
+            double gn;
+            g.eval(fbox.h[k], &gn);  // g of the mean f: what a naive coarse level would displace by
+            naive_rms += (gn - exact.h[k]) * (gn - exact.h[k]);
+        }
+        rms = std::sqrt(rms / gbar.h.size());
+        naive_rms = std::sqrt(naive_rms / gbar.h.size());
+        std::printf("  g-bar x%d: max error %.2e, rms %.2e (g of the mean f: rms %.2e), g range 0.012\n", factor, worst,
+                    rms, naive_rms);
+        EXPECT_LT(rms, 0.5 * naive_rms) << factor;  // g-bar beats g(f-bar) clearly
+        EXPECT_LT(worst, 0.12 * 0.012) << factor;   // within 12% of g's range everywhere
+    }
+    EXPECT_THROW(transfer_downsampled(m.height, g, 3), MesoError);
+}
+
+TEST(HeightTransfer, LodLevelsDisplaceByGBar) {
+    auto scene_json = [](const std::string &lod) {
+        return std::string(R"({"camera": {"type": "perspective", "origin": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0],
+            "fov": 30, "width": 8, "height": 8},
+          "shapes": [{"type": "rectangle", "material": {"type": "diffuse"},
+                      "displacement": )") + heightmap_block(kMoss).substr(0, heightmap_block(kMoss).size() - 1) +
+               R"(, "mode": "shell"}, "lod": )" + lod + "}]}";
+    };
+    auto s = meso::test::load_json_scene("lod_gbar.json", scene_json(R"({"factors": [1, 8], "transfer_filter": "gaussian"})"));
+    ASSERT_EQ(s->shapes.size(), 2u);
+    const auto *level = dynamic_cast<const ShellShape *>(s->shapes[1].get());
+    ASSERT_NE(level, nullptr);
+    const GeneratedMap m = gen_map();
+    Ramp g = parse_ramp(props(std::string(R"({"t": )") + kMoss + "}"), "t", 1);
+    const HeightMap gbar = transfer_downsampled(m.height, g, 8);
+    const Heightfield &f = *level->displacement().field;
+    ASSERT_EQ(f.width(), 32);
+    for (int j = 0; j < 32; j += 5)
+        for (int i = 0; i < 32; i += 3) EXPECT_NEAR(f.vertex(i, j), kOffset + kScale * gbar.at(i, j), 1e-5f);
+    // errors name the key
+    for (const char *bad : {R"({"factors": [1, 8], "transfer_filter": "mean"})",
+                            R"({"factors": [1, 8], "transfer_filter": "gaussian", "same_model": true})"}) {
+        try {
+            meso::test::load_json_scene("lod_gbar_bad.json", scene_json(bad));
+            ADD_FAILURE() << bad;
+        } catch (const MesoError &e) {
+            EXPECT_NE(std::string(e.what()).find("lod.transfer_filter"), std::string::npos) << e.what();
+        }
+    }
+}

@@ -71,6 +71,7 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
         d.transfer = std::make_shared<const Ramp>(parse_ramp(p, "transfer", 1));
         d.source += " through transfer " + d.transfer->to_string();
         if (apply_transfer) {
+            d.untransferred = std::make_shared<const HeightMap>(map);
             for (float &v : map.h) {
                 double g;
                 d.transfer->eval(double(v), &g);
@@ -122,6 +123,29 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
     }
     p.check_unused("displacement");
     return d;
+}
+
+HeightMap transfer_downsampled(const HeightMap &f, const Ramp &g, int factor) {
+    if (factor < 1 || f.width % factor != 0 || f.height % factor != 0)
+        throw MesoError(fmt::format("cannot downsample a {}x{} map by {} (the factor must divide both sizes)", f.width,
+                                    f.height, factor));
+    HeightMap out(f.width / factor, f.height / factor);
+    const double n = double(factor) * factor;
+    for (int j = 0; j < out.height; ++j)
+        for (int i = 0; i < out.width; ++i) {
+            double s = 0, s2 = 0;
+            for (int b = 0; b < factor; ++b)
+                for (int a = 0; a < factor; ++a) {
+                    const double v = f.at(i * factor + a, j * factor + b);
+                    s += v;
+                    s2 += v * v;
+                }
+            const double mean = s / n, var = std::max(0.0, s2 / n - mean * mean);
+            double gbar;
+            g.gaussian_average(mean, std::sqrt(var), &gbar);
+            out.at(i, j) = float(gbar);
+        }
+    return out;
 }
 
 }  // namespace meso

@@ -31,6 +31,9 @@ struct Displacement {
     /// itself (map units: scale 1, offset 0), see field_untransferred.
     std::shared_ptr<const Heightfield> field;
     std::shared_ptr<const Ramp> transfer;      ///< g of "transfer" (one channel), or null
+    /// With a transfer applied to `field`: the map f before g (map units), for LoD levels displaced
+    /// by the paper's g-bar (transfer_downsampled); null otherwise.
+    std::shared_ptr<const HeightMap> untransferred;
     bool field_untransferred = false;          ///< field holds f in map units; world = offset + scale * g(f)
     std::string source;                        ///< map file or generator, for messages and --plan
     float tiling_u = 1.f, tiling_v = 1.f;      ///< repeats of the map over uv [0,1]
@@ -56,5 +59,11 @@ struct Displacement {
 /// "transfer", field is the map f itself in map units (scale 1, offset 0, g not applied) and
 /// field_untransferred is set; without one it changes nothing.
 Displacement parse_displacement(const Properties &p, size_t max_triangles, bool apply_transfer = true);
+
+/// Paper 001 §7, "displaced geometry uses g-bar": a map `factor` times coarser whose vertex (i, j)
+/// is E[g(f)] under N(f_bar, sigma_f^2), f_bar and sigma_f^2 the mean and variance of f over the
+/// factor x factor block of vertices that box_downsampled averages (map units; eq. 21). With g the
+/// identity it equals the box-downsampled f. MesoError unless factor divides both sizes.
+HeightMap transfer_downsampled(const HeightMap &f, const Ramp &g, int factor);
 
 }  // namespace meso

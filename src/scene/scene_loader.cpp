@@ -15,10 +15,12 @@
 #include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "geometry/shape.h"
+#include "geometry/displacement.h"
 #include "geometry/shell_shape.h"
 #include "prefilter/model.h"
 #include "render/light.h"
 #include "render/lod.h"
+#include "render/transfer_filter.h"
 #include "render/material.h"
 #include "scene/gltf.h"
 #include "scene/overrides.h"
@@ -191,6 +193,16 @@ void add_lod_levels(const Properties &lp, const std::shared_ptr<Shape> &shape, S
     else lp.fail("blend", fmt::format("expected \"stochastic\" or \"blend\", got \"{}\"", blend));
     const bool same_model = lp.get_bool("same_model", false);
     const Displacement &disp = shell->displacement();
+    // Levels of a displacement with a height transfer g: box-downsampled g(f) ("exact"), or the
+    // paper 001 §7 g-bar of each block's Gaussian statistics of f ("gaussian").
+    const std::string tf = lp.get_string("transfer_filter", "exact");
+    if (tf != "exact" && tf != "gaussian")
+        lp.fail("transfer_filter", fmt::format("expected \"exact\" or \"gaussian\", got \"{}\"", tf));
+    const bool gbar = tf == "gaussian";
+    if (gbar && !disp.untransferred)
+        lp.fail("transfer_filter", "only meaningful when the shape's displacement has a \"transfer\"");
+    if (gbar && (lp.has("model") || same_model))
+        lp.fail("transfer_filter", "applies to box-downsampled levels only (not with \"model\" or \"same_model\")");
 
     // A prefiltered model (`meso prefilter`): its h_low per level, and its material per level.
     std::optional<prefilter::PrefilteredModel> model;
@@ -264,7 +276,9 @@ void add_lod_levels(const Properties &lp, const std::shared_ptr<Shape> &shape, S
             if (f != std::floor(f) || field->width() % int(f) != 0 || field->height() % int(f) != 0)
                 lp.fail("factors", fmt::format("level {}: factor {} must be an integer dividing the map size {}x{} "
                                                "(levels are box-downsampled)", k, f, field->width(), field->height()));
-            field = std::make_shared<Heightfield>(field->box_downsampled(int(f)), 1.f, 0.f);
+            field = gbar ? std::make_shared<Heightfield>(transfer_downsampled(*disp.untransferred, *disp.transfer, int(f)),
+                                                         disp.scale, disp.offset)
+                         : std::make_shared<Heightfield>(field->box_downsampled(int(f)), 1.f, 0.f);
         }
         auto level = shell->with_field(field, fmt::format("{} LoD level {} (x{})", lp.path(), k, factors[k]));
         level->material = materials.empty() ? shape->material : materials[k];
