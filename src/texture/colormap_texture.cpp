@@ -339,11 +339,7 @@ public:
         mean = m_center + m[0];
         var = std::max(0.0, double(m[1]) - double(m[0]) * m[0]);
         // Magnification: fade the variance by the footprint width squared (header comment).
-        const double W = m_mip.width(0), H = m_mip.height(0);
-        const double wx = std::hypot(clean_derivative(dudx) * W, clean_derivative(dvdx) * H);
-        const double wy = std::hypot(clean_derivative(dudy) * W, clean_derivative(dvdy) * H);
-        const double width = std::max(wx, wy);
-        if (!(width >= 1.0)) var *= width * width;
+        var = m_mip.magnified_variance(var, dudx, dudy, dvdx, dvdy);
     }
 
     double global_mean() const override { return m_center; }

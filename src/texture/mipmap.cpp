@@ -143,6 +143,13 @@ float MipMap::level_for_footprint(float dudx, float dudy, float dvdx, float dvdy
     return std::min(level, float(levels() - 1));
 }
 
+double MipMap::footprint_width(float dudx, float dudy, float dvdx, float dvdy) const {
+    auto clean = [](float d) { return std::isnan(d) ? 0.0 : double(clamp(d, -1e30f, 1e30f)); };
+    const double w = width(0), h = height(0);
+    const double lx = std::hypot(clean(dudx) * w, clean(dvdx) * h), ly = std::hypot(clean(dudy) * w, clean(dvdy) * h);
+    return std::max(lx, ly);
+}
+
 /// Texel coordinate of u on an n-texel axis, kept finite and in a safe integer range (the
 /// wrap is periodic, so reducing u modulo 2 first changes nothing for repeat/mirror).
 static float texel_coord(float u, int n, WrapMode wrap) {

@@ -59,6 +59,17 @@ public:
 
     /// Continuous level for a uv footprint (ray-differential derivatives).
     float level_for_footprint(float dudx, float dudy, float dvdx, float dvdy) const;
+    /// The footprint's width in level-0 texels (the larger axis, as level_for_footprint uses);
+    /// NaN derivatives count as 0, infinite ones as 1e30.
+    double footprint_width(float dudx, float dudy, float dvdx, float dvdy) const;
+    /// The variance of a moment pyramid (E[x^2] - E[x]^2 read at the footprint) corrected for
+    /// magnification: a level-0 texel holds its whole cell's variance, of which a window w < 1
+    /// texel wide sees about w^2 (a locally linear signal), so the variance is scaled by
+    /// min(1, w^2); a zero footprint gives 0.
+    double magnified_variance(double variance, float dudx, float dudy, float dvdx, float dvdy) const {
+        const double w = footprint_width(dudx, dudy, dvdx, dvdy);
+        return w >= 1.0 ? variance : variance * w * w;
+    }
 
     // Lookups write channels() floats to `out`.
     void nearest(int level, float u, float v, float *out) const;

@@ -30,9 +30,11 @@ SlopeSource::SlopeSource(const Heightfield &field, float tiling_u, float tiling_
 void SlopeSource::map_height_moments(const ShadingContext &ctx, double &mean, double &variance) const {
     float m[2];
     const float u = ctx.uv.x * m_tu, v = ctx.uv.y * m_tv;
-    m_hmip->lookup(m_filter, u, v, ctx.dudx * m_tu, ctx.dudy * m_tu, ctx.dvdx * m_tv, ctx.dvdy * m_tv, m, m_max_aniso);
+    const float dudx = ctx.dudx * m_tu, dudy = ctx.dudy * m_tu, dvdx = ctx.dvdx * m_tv, dvdy = ctx.dvdy * m_tv;
+    m_hmip->lookup(m_filter, u, v, dudx, dudy, dvdx, dvdy, m, m_max_aniso);
     mean = m_hcenter + m[0];
-    variance = std::max(0.0, double(m[1]) - double(m[0]) * m[0]);
+    // Below one texel the footprint sees only part of a cell's height variance (MipMap).
+    variance = m_hmip->magnified_variance(std::max(0.0, double(m[1]) - double(m[0]) * m[0]), dudx, dudy, dvdx, dvdy);
 }
 
 bool SlopeSource::height_moments(const ShadingContext &ctx, double &mean, double &variance) const {
