@@ -2,6 +2,7 @@
 #include <fmt/format.h>
 #include <cstdio>
 #include "app/commands.h"
+#include "core/distributed.h"
 #include "core/error.h"
 #include "meso_version.h"
 
@@ -30,10 +31,10 @@ int run_cli(int argc, char **argv) {
     try {
         for (auto &[sub, act] : actions)
             if (sub->parsed()) return act();
-    } catch (const MesoError &e) {
-        std::fprintf(stderr, "meso: error: %s\n", e.what());
-        return 1;
     } catch (const std::exception &e) {
+        // Under MPI with several ranks the others may wait in a collective: end the whole job
+        // (mpirun then exits non-zero; no output is written, rank 0 writes only after the reduce).
+        if (dist::size() > 1) dist::abort_all(e.what());
         std::fprintf(stderr, "meso: error: %s\n", e.what());
         return 1;
     }

@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <tbb/info.h>
 #include "app/commands.h"
+#include "core/distributed.h"
 #include "geometry/embree_accel.h"
 #include "meso_version.h"
 #include "scene/registry.h"
@@ -18,6 +19,7 @@ template <typename T> void list(const char *kind, const PluginTable<T> &t) {
 int run_info() {
     std::printf("meso %s\n", MESO_VERSION);
     std::printf("%s\n", EmbreeAccel::version_string().c_str());
+    std::printf("distribution: %s\n", dist::describe().c_str());
     std::printf("threads available: %d\n", tbb::info::default_concurrency());
     const Registry &r = registry();
     list("cameras", r.cameras);

@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include "app/commands.h"
+#include "core/distributed.h"
 #include "core/error.h"
 #include "geometry/embree_accel.h"
 #include "meso_version.h"
@@ -64,6 +65,7 @@ int run_render(const RenderArgs &a) {
         throw MesoError(fmt::format("{}: reference is {}x{} but the camera renders {}x{}", a.reference, reference.width,
                                     reference.height, scene->camera->width(), scene->camera->height()));
     if (a.plan) {
+        if (dist::rank() != 0) return 0;
         std::printf("plan for %s (nothing is built or rendered):\n", a.scene.c_str());
         for (auto &line : scene->plan()) std::printf("  %s\n", line.c_str());
         std::filesystem::path png = out, js = out;
@@ -85,6 +87,8 @@ int run_render(const RenderArgs &a) {
     opts.reference = a.reference.empty() ? nullptr : &reference;
     opts.convergence_csv = a.convergence;
     RenderResult r = render(*scene, opts);
+    // Under MPI only rank 0 holds the summed film; it alone writes (docs/cluster.md).
+    if (dist::rank() != 0) return 0;
 
     nlohmann::json rec;
     rec["meso_version"] = MESO_VERSION;
@@ -96,6 +100,7 @@ int run_render(const RenderArgs &a) {
     rec["sampler"] = scene->sampler->name();
     rec["seed"] = a.seed >= 0 ? a.seed : int64_t(scene->sampler->seed());
     rec["threads"] = r.threads;
+    rec["ranks"] = r.ranks;
     rec["time_budget_s"] = a.time;
     rec["load_s"] = load_s;
     rec["build_s"] = build_s;
@@ -133,9 +138,10 @@ int run_render(const RenderArgs &a) {
     write_text_atomic(js.string(), rec.dump(2) + "\n");
 
     std::printf("wrote %s, %s, %s\n", exr.string().c_str(), png.string().c_str(), js.string().c_str());
-    std::printf("%dx%d, %d spp in %.3f s (%d threads): %.3g rays/s, peak %.0f MB, %ld NaN/Inf samples\n",
-                scene->camera->width(), scene->camera->height(), r.spp, r.wall_s, r.threads, r.rays_per_s,
-                peak_rss_mb(), r.nan_count);
+    std::printf("%dx%d, %d spp in %.3f s (%s%d threads): %.3g rays/s, peak %.0f MB, %ld NaN/Inf samples\n",
+                scene->camera->width(), scene->camera->height(), r.spp, r.wall_s,
+                r.ranks > 1 ? fmt::format("{} ranks x ", r.ranks).c_str() : "", r.threads, r.rays_per_s, peak_rss_mb(),
+                r.nan_count);
     if (rec.contains("mse"))
         std::printf("vs %s: MSE %.6g, relMSE %.6g\n", a.reference.c_str(), rec["mse"].get<double>(),
                     rec["relmse"].get<double>());

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <fstream>
 #include <fmt/format.h>
+#include "core/distributed.h"
 #include "core/error.h"
 #include "render/progress.h"
 #include "sampling/sampler.h"
@@ -51,7 +52,12 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     const int W = scene.camera->width(), H = scene.camera->height();
     const int total_spp = opts.spp > 0 ? opts.spp : scene.spp;
     const bool timed = opts.time_budget_s > 0;
-    int threads = opts.threads > 0 ? opts.threads : tbb::info::default_concurrency();
+    // Ranks (MPI, docs/cluster.md): rank r renders, in every pass, its own block of n consecutive
+    // sample indices after the blocks of ranks 0..r-1, so after P passes the ranks together hold
+    // exactly the sample indices 0 .. P*ranks*n - 1 of a single-process render with the same seed.
+    const int ranks = dist::size(), rank = dist::rank();
+    // Default threads: the node's cores shared among the ranks on it.
+    int threads = opts.threads > 0 ? opts.threads : std::max(1, tbb::info::default_concurrency() / dist::local_size());
     tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
 
     // Passes of at least ~64k samples keep the per-pass overhead negligible; a pass is a
@@ -68,13 +74,15 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     std::unique_ptr<std::ofstream> csv;
     if (!opts.convergence_csv.empty()) {
         if (!opts.reference) throw MesoError("--convergence needs --reference");
+        if (ranks > 1) throw MesoError("--convergence is not supported with several MPI ranks (it needs the whole film after every pass)");
         csv = std::make_unique<std::ofstream>(opts.convergence_csv);
         if (!*csv) throw MesoError(fmt::format("cannot write '{}'", opts.convergence_csv));
         *csv << "pass,elapsed_s,spp,mse,relmse\n";
     }
 
     scene.integrator->preprocess(scene);
-    Progress progress(opts.progress, timed ? opts.time_budget_s : double(total_spp), timed ? "s" : "spp");
+    Progress progress(opts.progress && rank == 0, timed ? opts.time_budget_s : double(total_spp), timed ? "s" : "spp");
+    dist::barrier();  // every rank starts the clock (and the time budget) together
     auto t0 = std::chrono::steady_clock::now();
     auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
 
@@ -82,14 +90,17 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     double last_pass_s = 0.0, pass_start = 0.0;
     const int tiles_x = (W + TileSize - 1) / TileSize, tiles_y = (H + TileSize - 1) / TileSize;
     for (;;) {
-        int n = timed ? spp_per_pass : std::min(spp_per_pass, total_spp - spp_done);
-        if (n <= 0) break;
+        // spp_done: samples per pixel of all ranks so far; this rank's block of the pass.
+        const int block = spp_per_pass;
+        if (!timed && spp_done >= total_spp) break;
+        const int first = spp_done + rank * block;
+        const int n = timed ? block : std::max(0, std::min(block, total_spp - first));
         if (timed && passes > 0) {
             // Start a pass only if it is expected to finish within the budget, predicted from
             // the last pass (the first one also pays for warm-up: caches, lazy page faults).
-            if (elapsed() + last_pass_s > opts.time_budget_s) break;
+            // Rank 0 decides for all, so every rank stops after the same pass.
+            if (dist::broadcast(elapsed() + last_pass_s > opts.time_budget_s)) break;
         }
-        const int first = spp_done;
         pass_start = elapsed();
         tbb::parallel_for(tbb::blocked_range2d<int>(0, tiles_y, 1, 0, tiles_x, 1), [&](const tbb::blocked_range2d<int> &r) {
             std::unique_ptr<Sampler> sampler = scene.sampler->clone();
@@ -122,7 +133,7 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
                         }
                 }
         });
-        spp_done += n;
+        spp_done += timed ? ranks * block : std::min(ranks * block, total_spp - spp_done);
         ++passes;
         double t = elapsed();
         last_pass_s = t - pass_start;
@@ -135,8 +146,22 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     }
     progress.finish(elapsed());
 
+    // The ranks' films and counters summed on rank 0 (the other ranks keep their partial film).
+    double wall = elapsed();
+    if (ranks > 1) {
+        dist::reduce_sum_to_root(film.sum.data(), film.sum.size());
+        uint64_t counts[3] = {uint64_t(film.nan_count.load()), 0, 0};
+        for (auto &s : stats) counts[1] += s.rays, counts[2] += s.shadow_rays;
+        dist::reduce_sum_to_root(counts, 3);
+        film.nan_count.store(long(counts[0]));
+        stats.clear();
+        stats.local().rays = counts[1];
+        stats.local().shadow_rays = counts[2];
+        wall = dist::allreduce_max(wall);
+    }
     RenderResult res;
-    res.wall_s = elapsed();
+    res.ranks = ranks;
+    res.wall_s = wall;
     res.spp = spp_done;
     res.passes = passes;
     res.threads = threads;

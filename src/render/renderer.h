@@ -32,9 +32,12 @@ struct RenderResult {
     uint64_t shadow_rays = 0;
     double rays_per_s = 0;
     long nan_count = 0;      ///< NaN/Inf samples caught by the film (counted as 0)
-    int threads = 0;
+    int threads = 0;         ///< per rank
+    int ranks = 1;           ///< MPI ranks that rendered (the image, spp and counters are their sum)
 };
 
+/// With several MPI ranks (core/distributed.h) every rank must call this; the result's image and
+/// counters are complete on rank 0 only.
 RenderResult render(const Scene &scene, const RenderOptions &opts);
 
 /// Peak resident memory of this process in MB (getrusage).
