@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include "app/commands.h"
+#include "core/distributed.h"
 #include "core/error.h"
 #include "geometry/heightfield.h"
 #include "geometry/heightmap_gen.h"
@@ -135,7 +136,7 @@ int run_prefilter(const PrefilterOptions &o) {
         input["generator"] = {{"kind", o.generator}, {"params", g.params}};
     }
     if (!periodic)
-        std::fprintf(stderr, "prefilter: warning: the map does not tile; it is treated as periodic (seam included)\n");
+        if (dist::rank() == 0) std::fprintf(stderr, "prefilter: warning: the map does not tile; it is treated as periodic (seam included)\n");
     nlohmann::json base_json;
     std::string base_dir;
     std::shared_ptr<Material> base = load_material_arg(o.base, base_json, &base_dir);
@@ -181,7 +182,7 @@ int run_prefilter(const PrefilterOptions &o) {
     const double cells_per_unit = double(map.width) / o.tile_size;
     const Heightfield orig(map, float(o.height_scale * cells_per_unit), 0.f);
     const Heightfield orig_map_units(map, 1.f, 0.f);
-    std::fprintf(stderr, "prefilter: %dx%d map, base %s, scales %s, M = %d, N = %d, %d lobes, interreflections %s\n",
+    if (dist::rank() == 0) std::fprintf(stderr, "prefilter: %dx%d map, base %s, scales %s, M = %d, N = %d, %d lobes, interreflections %s\n",
                  map.width, map.height, base->to_string().c_str(), o.scales.c_str(), o.M, o.N, o.lobes,
                  o.interreflections.c_str());
 
@@ -213,7 +214,7 @@ int run_prefilter(const PrefilterOptions &o) {
         size_t converged = 0;
         double mean_it = 0;
         for (const auto &p : L.ndf) converged += p.converged, mean_it += p.iterations;
-        std::fprintf(stderr, "  x%d: h_low %dx%d (%.2f s), SVNDF %zu patches (%.2f s, %.0f EM iterations on average)\n", F,
+        if (dist::rank() == 0) std::fprintf(stderr, "  x%d: h_low %dx%d (%.2f s), SVNDF %zu patches (%.2f s, %.0f EM iterations on average)\n", F,
                      low.width, low.height, timing["least_squares_s"].get<double>(), L.ndf.size(),
                      timing["svndf_fit_s"].get<double>(), mean_it / double(L.ndf.size()));
         // §6: T and S.
@@ -230,7 +231,7 @@ int run_prefilter(const PrefilterOptions &o) {
         sopt.low_nodes = o.low_nodes;
         sopt.epsilon = o.epsilon;
         sopt.seed = hash_combine(o.seed, uint64_t(F));
-        Progress progress(!o.quiet, 1.0, "");
+        Progress progress(!o.quiet && dist::rank() == 0, 1.0, "");
         const auto t_round = std::make_shared<Clock::time_point>(Clock::now());
         int round = 0;
         sopt.progress = [&](double frac) {
@@ -244,7 +245,7 @@ int run_prefilter(const PrefilterOptions &o) {
             est.add_round();
             progress.finish(since(*t_round));
             se = est.current_S_rel_se();
-            std::fprintf(stderr, "  x%d: round %d: median relative std. error of S%s %.4f (%.1f s)\n", F, round + 1,
+            if (dist::rank() == 0) std::fprintf(stderr, "  x%d: round %d: median relative std. error of S%s %.4f (%.1f s)\n", F, round + 1,
                          ir ? "_ir" : "", se, since(t0));
             if (!(o.target_error > 0) || se <= o.target_error) break;
         }
@@ -259,7 +260,7 @@ int run_prefilter(const PrefilterOptions &o) {
                                     {"lobes", L.ndf.size() * size_t(5 * o.lobes + 1) * sizeof(float)},
                                     {"T", size_t(o.M) * o.M * 3 * sizeof(float) * (ir ? 2 : 1)},
                                     {"S", size_t(o.N) * o.N * o.N * o.N * 3 * sizeof(float) * (ir ? 2 : 1)}};
-        std::fprintf(stderr,
+        if (dist::rank() == 0) std::fprintf(stderr,
                      "  x%d: T/S %.1f s; S rel. std. error median %.4f (grazing ring %.4f; paper's counts: %.4f)%s; rank-1 energy %.4f, "
                      "|R - T S| / |R| = %.4f vs rank-1 SVD %.4f\n",
                      F, timing["scaling_s"].get<double>(), ir ? st.S_ir_rel_se_median : st.S_rel_se_median,
@@ -270,9 +271,13 @@ int run_prefilter(const PrefilterOptions &o) {
         model.levels.push_back(std::move(L));
     }
     model.manifest["total_seconds"] = since(t_all);
+    // Under MPI every rank holds the same tables (ScalingEstimator::add_round); rank 0 writes.
+    model.manifest["ranks"] = dist::size();
+    if (dist::rank() != 0) return 0;
     model.save(o.output);
-    std::printf("%s\n", fmt::format("prefilter: wrote {} ({} levels, {:.1f} s)", o.output, scales.size(),
-                                    since(t_all)).c_str());
+    std::printf("%s\n", fmt::format("prefilter: wrote {} ({} levels, {:.1f} s{})", o.output, scales.size(),
+                                    since(t_all), dist::size() > 1 ? fmt::format(", {} ranks", dist::size()) : "")
+                             .c_str());
     return 0;
 }
 

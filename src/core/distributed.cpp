@@ -74,7 +74,14 @@ void reduce_sum_to_root(uint64_t *data, size_t n) {
 
 void allreduce_sum(double *data, size_t n) {
     if (!g_active || g_size == 1) return;
-    MPI_Allreduce(MPI_IN_PLACE, data, int(n), MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD);
+    constexpr size_t chunk = size_t(1) << 26;  // MPI counts are int
+    for (size_t o = 0; o < n; o += chunk)
+        MPI_Allreduce(MPI_IN_PLACE, data + o, int(std::min(chunk, n - o)), MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD);
+}
+
+void allreduce_sum(uint32_t *data, size_t n) {
+    if (!g_active || g_size == 1) return;
+    MPI_Allreduce(MPI_IN_PLACE, data, int(n), MPI_UINT32_T, MPI_SUM, MPI_COMM_WORLD);
 }
 
 double allreduce_max(double v) {
@@ -121,6 +128,7 @@ void abort_all(const std::string &, int) {}
 void reduce_sum_to_root(double *, size_t) {}
 void reduce_sum_to_root(uint64_t *, size_t) {}
 void allreduce_sum(double *, size_t) {}
+void allreduce_sum(uint32_t *, size_t) {}
 double allreduce_max(double v) { return v; }
 bool broadcast(bool v) { return v; }
 void broadcast(double *, size_t) {}

@@ -31,6 +31,7 @@ void reduce_sum_to_root(double *data, size_t n);
 void reduce_sum_to_root(uint64_t *data, size_t n);
 /// Element-wise sum over all ranks, result on every rank.
 void allreduce_sum(double *data, size_t n);
+void allreduce_sum(uint32_t *data, size_t n);
 /// Maximum over all ranks, result on every rank.
 double allreduce_max(double v);
 /// Rank 0's value on every rank (a decision all ranks must share, e.g. "render another pass").

@@ -1,5 +1,6 @@
 // Direct estimation of T and S (paper 004 §6) with splatted next-event terms: see scaling.h.
 #include "prefilter/scaling.h"
+#include "core/distributed.h"
 #include <tbb/parallel_for.h>
 #include <Eigen/Dense>
 #include <algorithm>
@@ -283,19 +284,55 @@ void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
 void ScalingEstimator::add_round() {
     const size_t tasks = size_t(m_opt.M) * m_opt.M * m_bins;
     const uint64_t round_seed = hash_combine(m_opt.seed, uint64_t(m_stats.rounds) + 1);
+    // MPI ranks (core/distributed.h, docs/cluster.md): task t belongs to rank t mod ranks in every
+    // round, so each sum is accumulated by one rank in the single-process order; after the round
+    // the ranks exchange their tasks' slices (each entry has one non-zero contribution, so the sum
+    // is exact) and every rank holds the same, single-process-identical arrays.
+    const size_t ranks = size_t(dist::size()), rank = size_t(dist::rank());
+    const size_t mine = ranks > 1 ? (tasks + ranks - 1 - rank) / ranks : tasks;
+    const ScalingStats before = m_stats;
     std::atomic<size_t> done{0};
     std::mutex mu;
     const auto t0 = Clock::now();
-    tbb::parallel_for(size_t(0), tasks, [&](size_t t) {
-        trace_task(t, round_seed);
+    tbb::parallel_for(size_t(0), mine, [&](size_t i) {
+        trace_task(ranks > 1 ? rank + i * ranks : i, round_seed);
         const size_t d = ++done;
-        if (m_opt.progress && (d % 16 == 0 || d == tasks)) {
+        if (m_opt.progress && (d % 16 == 0 || d == mine)) {
             std::lock_guard<std::mutex> lock(mu);
-            m_opt.progress(double(d) / double(tasks));
+            m_opt.progress(double(d) / double(mine));
         }
     });
-    m_stats.seconds += seconds_since(t0);
+    if (ranks > 1) share_round(before);
+    m_stats.seconds += dist::allreduce_max(seconds_since(t0));
     ++m_stats.rounds;
+}
+
+void ScalingEstimator::share_round(const ScalingStats &before) {
+    const size_t ranks = size_t(dist::size()), rank = size_t(dist::rank());
+    const size_t tasks = size_t(m_opt.M) * m_opt.M * m_bins, per = size_t(m_bins) * 3;
+    auto share = [&](auto &a, size_t stride) {
+        if (a.empty()) return;
+        std::remove_reference_t<decltype(a)> c(a.size(), 0);
+        for (size_t t = rank; t < tasks; t += ranks)
+            std::copy(a.begin() + t * stride, a.begin() + (t + 1) * stride, c.begin() + t * stride);
+        dist::allreduce_sum(c.data(), c.size());
+        a.swap(c);
+    };
+    for (std::vector<double> *a : {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq}) share(*a, per);
+    share(m_count_orig, 1);
+    share(m_count_low, 1);
+    double d[7] = {double(m_stats.orig_lines - before.orig_lines), double(m_stats.low_lines - before.low_lines),
+                   double(m_stats.orig_vertices - before.orig_vertices), double(m_stats.rejected - before.rejected),
+                   double(m_stats.leaked - before.leaked), m_stats.core_seconds_orig - before.core_seconds_orig,
+                   m_stats.core_seconds_low - before.core_seconds_low};
+    dist::allreduce_sum(d, 7);
+    m_stats.orig_lines = before.orig_lines + size_t(d[0]);
+    m_stats.low_lines = before.low_lines + size_t(d[1]);
+    m_stats.orig_vertices = before.orig_vertices + size_t(d[2]);
+    m_stats.rejected = before.rejected + size_t(d[3]);
+    m_stats.leaked = before.leaked + size_t(d[4]);
+    m_stats.core_seconds_orig = before.core_seconds_orig + d[5];
+    m_stats.core_seconds_low = before.core_seconds_low + d[6];
 }
 
 double ScalingEstimator::denom_mean(int ch) const {

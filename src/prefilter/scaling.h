@@ -41,7 +41,9 @@
 // (positions stratified in P when a perfect square) and `low_paths` on G_low; (P, ωo bin)
 // pairs run in parallel (TBB), each with its own PCG32 streams (hash of seed, round, task,
 // line): results depend on (seed, options) only, not on the thread count. Rounds (add_round)
-// can be added to reach a target standard error.
+// can be added to reach a target standard error. Under MPI the tasks are dealt out to the ranks
+// (task t to rank t mod ranks, every round) and exchanged after each round: the tables are
+// bit-identical to a single process's (docs/cluster.md).
 //
 // Standard errors: delta method with numerator and denominator taken as independent
 // (conservative: the common random numbers correlate them positively).
@@ -125,6 +127,8 @@ public:
 
 private:
     void trace_task(size_t task, uint64_t round_seed);
+    /// MPI: every rank's tasks of the round to every rank (add_round), counters summed.
+    void share_round(const ScalingStats &before);
     double denom_mean(int ch) const;
 
     const Heightfield &m_orig, &m_low;

@@ -1,5 +1,6 @@
 #!/usr/bin/python3
-"""MPI checks of `meso render` (issue 10, docs/cluster.md), run by CTest when meso is built with MPI.
+"""MPI checks of `meso render` and `meso prefilter` (issue 10, docs/cluster.md), run by CTest when
+meso is built with MPI.
 
   equal      `mpirun -n 1` and `mpirun -n 2` against the plain single-process render of the same
              scene, seed and spp. The ranks render disjoint blocks of the same per-sample seeded
@@ -11,7 +12,11 @@
              is a whole number of 2-rank passes, the wall time is near the budget.
   failure    a rank that fails (a missing scene) ends the job with a non-zero exit and a message,
              and leaves no output file.
-Usage: check_mpi_render.py --meso PATH [--out DIR] [--mpirun mpirun]. Exit 1 on any failure.
+  prefilter  `mpirun -n 2 meso prefilter` deals the T/S tasks out to the ranks and exchanges them
+             after each round: T, S, T_ir, S_ir and h_low must be bit-identical to the plain run's
+             (pixels; the EXR headers carry a date), and so must the manifest's statistics but for
+             timings.
+Usage: check_mpi.py --meso PATH [--out DIR] [--mpirun mpirun]. Exit 1 on any failure.
 """
 import argparse
 import json
@@ -110,6 +115,38 @@ def main():
     if os.path.exists(exr):
         failures.append("a failed MPI render left an output file")
     print(f"failing rank: exit {r.returncode}, message: {msg.strip().splitlines()[0] if msg.strip() else '(none)'}")
+
+    # prefilter: 1 process vs 2 ranks, two rounds
+    pf = ["prefilter", "--generator", "gaussian", "--size", "64", "--scales", "8", "-M", "2", "-N", "5", "--paths", "8",
+          "--low-paths", "8", "--target-error", "0.001", "--max-rounds", "2", "-q"]
+    outs = {}
+    for label, prefix in (("plain", []), ("n2", mpirun_cmd(a.mpirun, 2))):
+        d = os.path.join(a.out, f"prefilter_{label}")
+        r = run(prefix + [a.meso] + pf + ["-o", d])
+        if r.returncode != 0:
+            failures.append(f"prefilter ({label}) failed: {r.stderr.strip()[:300]}")
+        outs[label] = d
+    if not failures or all("prefilter" not in f for f in failures):
+        for t in ("T", "S", "T_ir", "S_ir", "h_low"):
+            ia = load_exr(a.meso, os.path.join(outs["plain"], "level_8", t + ".exr"))
+            ib = load_exr(a.meso, os.path.join(outs["n2"], "level_8", t + ".exr"))
+            if not np.array_equal(ia, ib):
+                failures.append(f"prefilter: {t} differs between 1 process and 2 ranks")
+
+        def stats(d):
+            with open(os.path.join(d, "manifest.json")) as f:
+                m = json.load(f)
+            lv = m["levels"][0]
+            drop = {"timing", "core_seconds_orig", "core_seconds_low", "seconds"}
+            return {k: v for k, v in lv.items() if k not in drop}, m.get("ranks")
+        (sa, ra), (sb, rb) = stats(outs["plain"]), stats(outs["n2"])
+        for k in set(sa) | set(sb):
+            if sa.get(k) != sb.get(k):
+                failures.append(f"prefilter: manifest level key '{k}' differs: {sa.get(k)} vs {sb.get(k)}")
+        if rb != 2:
+            failures.append(f"prefilter: manifest ranks {rb}, expected 2")
+        print("prefilter: 1 process vs 2 ranks: T, S, T_ir, S_ir, h_low " +
+              ("identical" if not any("prefilter" in f for f in failures) else "DIFFER"))
 
     for f in failures:
         print("FAIL: " + f, file=sys.stderr)
