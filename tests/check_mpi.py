@@ -8,6 +8,7 @@ meso is built with MPI.
              double-precision sums: |difference| <= 4 float ulps of the pixel value (the EXR is float;
              a double rounding difference can move the float by at most one ulp, the margin covers
              the division by spp). One rank is the same order as no MPI: bit-exact.
+  crop       `--crop` with 2 ranks against the plain crop (within 4 ulps)
   time       `--time` with 2 ranks: both stop after the same pass, the record's spp is the sum and
              is a whole number of 2-rank passes, the wall time is near the budget.
   failure    a rank that fails (a missing scene) ends the job with a non-zero exit and a message,
@@ -86,6 +87,21 @@ def main():
               f"max difference {worst:.1f} ulp")
         if worst > 4:
             failures.append(f"{scene}: 2 ranks differ from the plain render by {worst:.1f} ulp (> 4)")
+
+    # --crop under 2 ranks: the window's pixels as in the plain crop (and merge-able)
+    scene, defines = SCENES[0]
+    crop = ["--crop", "8,4,40,30", "--spp", "16", "--seed", "5", "-q", "--threads", "1"] + defines
+    ca, cb = os.path.join(a.out, "crop_plain.exr"), os.path.join(a.out, "crop_n2.exr")
+    ra = run([a.meso, "render", scene, "-o", ca] + crop)
+    rb = run(mpirun_cmd(a.mpirun, 2) + [a.meso, "render", scene, "-o", cb] + crop)
+    if ra.returncode or rb.returncode:
+        failures.append(f"crop renders failed: {ra.stderr.strip()[:200]} {rb.stderr.strip()[:200]}")
+    else:
+        ia, ib = load_exr(a.meso, ca).astype(np.float32), load_exr(a.meso, cb).astype(np.float32)
+        worst = float(np.max(np.abs(ia - ib) / np.maximum(np.spacing(np.abs(ia)), np.finfo(np.float32).tiny)))
+        print(f"--crop with 2 ranks vs plain crop: max difference {worst:.1f} ulp")
+        if ia.shape != (26, 32, 3) or worst > 4:
+            failures.append(f"crop: 2 ranks differ from the plain crop ({worst:.1f} ulp) or wrong size {ia.shape}")
 
     # --time across ranks
     exr = os.path.join(a.out, "timed.exr")

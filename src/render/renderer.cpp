@@ -47,9 +47,20 @@ constexpr int TileSize = 32;
 
 }  // namespace
 
+void check_crop(const std::array<int, 4> &c, int width, int height) {
+    if (!(0 <= c[0] && c[0] < c[2] && c[2] <= width && 0 <= c[1] && c[1] < c[3] && c[3] <= height))
+        throw MesoError(fmt::format("--crop {},{},{},{}: the window must lie in the {}x{} image "
+                                    "(0 <= X0 < X1 <= {}, 0 <= Y0 < Y1 <= {})",
+                                    c[0], c[1], c[2], c[3], width, height, width, height));
+}
+
 RenderResult render(const Scene &scene, const RenderOptions &opts) {
     if (!scene.camera || !scene.integrator || !scene.sampler) throw MesoError("scene is incomplete (camera, integrator or sampler missing)");
-    const int W = scene.camera->width(), H = scene.camera->height();
+    // The window [X0, X1) x [Y0, Y1) (the whole image without a crop); W x H is its size. Pixel
+    // coordinates stay those of the full image, so every sample is seeded as in a full render.
+    const std::array<int, 4> win = opts.crop.value_or(std::array<int, 4>{0, 0, scene.camera->width(), scene.camera->height()});
+    check_crop(win, scene.camera->width(), scene.camera->height());
+    const int X0 = win[0], Y0 = win[1], W = win[2] - win[0], H = win[3] - win[1];
     const int total_spp = opts.spp > 0 ? opts.spp : scene.spp;
     const bool timed = opts.time_budget_s > 0;
     // Ranks (MPI, docs/cluster.md): rank r renders, in every pass, its own block of n consecutive
@@ -60,7 +71,7 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     int threads = opts.threads > 0 ? opts.threads : std::max(1, tbb::info::default_concurrency() / dist::local_size());
     tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
 
-    // Passes of at least ~64k samples keep the per-pass overhead negligible; a pass is a
+    // Passes of at least ~64k samples (over the window's pixels) keep the per-pass overhead negligible; a pass is a
     // contiguous range of sample indices, so passes compose to exactly the same samples.
     // Under a time budget, passes are smaller (>= 8k samples, 1 spp from 90x90 pixels up) so
     // that the budget is used to within a few per cent even for small images and short
@@ -108,10 +119,11 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
             RenderStats &st = stats.local();
             for (int ty = r.rows().begin(); ty < r.rows().end(); ++ty)
                 for (int tx = r.cols().begin(); tx < r.cols().end(); ++tx) {
-                    const int x1 = std::min(W, (tx + 1) * TileSize), y1 = std::min(H, (ty + 1) * TileSize);
-                    for (int y = ty * TileSize; y < y1; ++y)
-                        for (int x = tx * TileSize; x < x1; ++x) {
-                            double *px = &film.sum[(size_t(y) * W + x) * 3];
+                    // Tiles are laid over the window; x, y are full-image pixel coordinates.
+                    const int x1 = X0 + std::min(W, (tx + 1) * TileSize), y1 = Y0 + std::min(H, (ty + 1) * TileSize);
+                    for (int y = Y0 + ty * TileSize; y < y1; ++y)
+                        for (int x = X0 + tx * TileSize; x < x1; ++x) {
+                            double *px = &film.sum[(size_t(y - Y0) * W + (x - X0)) * 3];
                             for (int s = first; s < first + n; ++s) {
                                 sampler->start_pixel_sample(x, y, uint32_t(s));
                                 CameraSample cs;

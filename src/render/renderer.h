@@ -1,7 +1,9 @@
 // The shared render loop: whole-image passes of tiles rendered in parallel with TBB,
 // under a sample budget (--spp) or a wall-clock budget (--time), with progress, a NaN
-// guard, and optional per-pass error against a reference.
+// guard, and optional per-pass error against a reference. A crop window (--crop) renders
+// only its pixels, with exactly the samples a full render gives them.
 #pragma once
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <optional>
@@ -19,7 +21,11 @@ struct RenderOptions {
     int threads = 0;            ///< 0: all cores
     std::optional<uint64_t> seed;  ///< overrides the sampler's seed when set
     bool progress = true;       ///< progress/ETA on stderr
-    const Image *reference = nullptr;    ///< per-pass error (for --convergence)
+    /// Render only the pixels [x0, x1) x [y0, y1) of the camera's image ({x0, y0, x1, y1}); pixel
+    /// coordinates (and so every sample) stay those of the full image, and the result's image is
+    /// the window's size. Checked by check_crop.
+    std::optional<std::array<int, 4>> crop;
+    const Image *reference = nullptr;    ///< per-pass error (for --convergence); the window's size
     std::string convergence_csv;         ///< write "pass,elapsed_s,spp,mse,relmse" rows here
 };
 
@@ -39,6 +45,10 @@ struct RenderResult {
 /// With several MPI ranks (core/distributed.h) every rank must call this; the result's image and
 /// counters are complete on rank 0 only.
 RenderResult render(const Scene &scene, const RenderOptions &opts);
+
+/// Throws MesoError naming --crop and the image size unless 0 <= x0 < x1 <= width and
+/// 0 <= y0 < y1 <= height.
+void check_crop(const std::array<int, 4> &crop, int width, int height);
 
 /// Peak resident memory of this process in MB (getrusage).
 double peak_rss_mb();
