@@ -17,6 +17,8 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include "app/commands.h"
+#include <tbb/global_control.h>
+#include <tbb/info.h>
 #include "core/distributed.h"
 #include "core/error.h"
 #include "geometry/heightfield.h"
@@ -48,6 +50,7 @@ struct PrefilterOptions {
     std::string interreflections = "on", flow = "eq5";
     double target_error = 0, epsilon = 1e-2;
     uint64_t seed = 1;
+    int threads = 0;  ///< 0: the node's cores / the MPI ranks on it
     bool quiet = false;
 };
 
@@ -104,6 +107,9 @@ nlohmann::json stats_json(const prefilter::ScalingStats &s, bool ir) {
 
 int run_prefilter(const PrefilterOptions &o) {
     const auto t_all = Clock::now();
+    if (o.threads < 0) throw MesoError("prefilter: --threads: expected a positive count");
+    const int threads = o.threads > 0 ? o.threads : std::max(1, tbb::info::default_concurrency() / dist::local_size());
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
     if (o.output.empty()) throw MesoError("prefilter: -o/--output DIR is required");
     if (o.map.empty() == o.generator.empty())
         throw MesoError("prefilter: give exactly one of --map FILE and --generator KIND");
@@ -323,6 +329,7 @@ SubcommandRegistrar reg_prefilter{
          app.add_option("--seed", o->seed, "random seed of the estimators")->capture_default_str();
          app.add_option("-o,--output", o->output, "model directory to write");
          app.add_flag("-q,--quiet", o->quiet, "no progress bar");
+         app.add_option("--threads", o->threads, "worker threads (default: all cores, shared among the MPI ranks on a node)");
          return [o] { return run_prefilter(*o); };
      }}};
 
