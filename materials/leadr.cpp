@@ -88,7 +88,9 @@
 // <C, N(h_bar + mu_d + mu_r, sigma_d^2 + sigma_r^2)>. In env_radiance the light term is dropped
 // (Lambda = Lambda(wo)). Slopes: D_s = visible_slope_gaussian(distribution, wo); slope_x / slope_y
 // read the preconvolved table with its marginal, steepness integrates C(|s|) against D_s
-// (gaussian_average_steepness: polar quadrature about s = 0, ~10 us).
+// (gaussian_average_steepness: closed-form radial integrals over 16-256 directions).
+// Eval cost of a diffuse point (LeadrColormap.EvalCost, medians of 3 runs on 2 shared cores): 0.43 us
+// without a colour map, 0.46-0.51 us with height (fit or exact) or slope_x, 3.4 us with steepness.
 #include <cmath>
 #include <optional>
 #include <fmt/format.h>

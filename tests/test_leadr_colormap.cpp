@@ -3,6 +3,7 @@
 // irradiance mode. The closed forms themselves are tested in test_transfer_filter.cpp; these
 // tests check the wiring against independent quadratures of the paper's integrals.
 #include <gtest/gtest.h>
+#include <chrono>
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include "core/error.h"
@@ -331,5 +332,36 @@ TEST(LeadrColormap, CombinationsAreSumsAndProductsOfTheTerms) {
         ADD_FAILURE() << "no error";
     } catch (const MesoError &e) {
         EXPECT_NE(std::string(e.what()).find("colormap_combine"), std::string::npos) << e.what();
+    }
+}
+
+// Cost of the colour factor (a measurement printed for the README and notes; the only check is
+// that the values are finite): eval of a diffuse leadr point with and without each colormap.
+TEST(LeadrColormap, EvalCost) {
+    const std::string sl = R"({"attribute": "slope_x", "ramp": [[-0.5, [1, 0, 0]], [0.5, [0, 0, 1]]]})";
+    const std::string st = R"({"attribute": "steepness", "ramp": [[0, [0, 0, 1]], [0.5, [0, 1, 0]], [1.5, [1, 0, 0]]]})";
+    const std::pair<const char *, std::string> cases[] = {
+        {"none", plain_json()},
+        {"height (fit)", leadr_json("")},
+        {"height (exact)", leadr_json(R"(, "height_distribution": "exact")")},
+        {"slope_x", R"({"type": "leadr", "covariance": [0.1, 0.1, 0], "specular_reflectance": 0, "diffuse_reflectance": 1, "colormap": )" + sl + "}"},
+        {"steepness", R"({"type": "leadr", "covariance": [0.1, 0.1, 0], "specular_reflectance": 0, "diffuse_reflectance": 1, "colormap": )" + st + "}"},
+    };
+    ShadingContext ctx;
+    PCG32 rng(3);
+    std::vector<std::pair<Vec3, Vec3>> dirs;
+    for (int i = 0; i < 256; ++i)
+        dirs.emplace_back(dir_deg(80.0 * rng.next_float(), 360.0 * rng.next_float()),
+                          dir_deg(80.0 * rng.next_float(), 360.0 * rng.next_float()));
+    for (const auto &[name, json] : cases) {
+        auto m = make_material(json);
+        Spectrum acc(0.f);
+        for (const auto &d : dirs) acc += m->eval(ctx, d.first, d.second);  // warm-up (tables built once)
+        const int n = 20000;
+        const auto t0 = std::chrono::steady_clock::now();
+        for (int i = 0; i < n; ++i) acc += m->eval(ctx, dirs[i & 255].first, dirs[i & 255].second);
+        const double us = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count() / n;
+        EXPECT_TRUE(acc.is_finite());
+        std::printf("[ cost     ] leadr diffuse eval, colormap %s: %.2f us\n", name, us);
     }
 }

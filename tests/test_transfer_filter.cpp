@@ -1231,3 +1231,31 @@ TEST(TransferFilter, TransferredStatisticsMatchMonteCarlo) {
     EXPECT_NEAR(t.slopes.sxx, 0.2, 1e-12); EXPECT_NEAR(t.slopes.syy, 0.28, 1e-12);
     EXPECT_NEAR(t.slopes.sxy, 0.04, 1e-12);
 }
+
+// E[C(|s|)] (gaussian_average_steepness) against a brute-force 2D midpoint rule over +-8 sd, for
+// centred, non-centred, anisotropic-correlated and concentrated (far from s = 0) distributions.
+TEST(TransferFilter, SteepnessAverageMatchesBruteForce) {
+    const Ramp ramp({0.0, 0.2, 0.5, 1.5}, {0, 0, 1, 0, 1, 0, 1, 0.5, 0, 1, 0, 0}, 3);
+    const SlopeGaussian cases[] = {make(0, 0, 0.3, 0.3, 0), make(0.3, -0.2, 0.12, 0.05, 0.02),
+                                   make(0.8, 0.4, 0.02, 0.2, -0.04), make(1.2, 0.0, 0.004, 0.001, 0.0),
+                                   make(0.05, 0.0, 1e-4, 1e-4, 0.0), make(-0.4, 0.6, 0.5, 0.01, 0.05)};
+    for (const SlopeGaussian &g : cases) {
+        double out[3];
+        gaussian_average_steepness(ramp, g, out);
+        const double det = g.sxx * g.syy - g.sxy * g.sxy, sx = std::sqrt(g.sxx), sy = std::sqrt(g.syy);
+        const int n = 1200;
+        double ref[3] = {0, 0, 0}, mass = 0;
+        for (int i = 0; i < n; ++i)
+            for (int j = 0; j < n; ++j) {
+                const double x = g.mx + sx * (-8 + 16 * (i + 0.5) / n), y = g.my + sy * (-8 + 16 * (j + 0.5) / n);
+                const double dx = x - g.mx, dy = y - g.my;
+                const double w = std::exp(-0.5 * (g.syy * dx * dx - 2 * g.sxy * dx * dy + g.sxx * dy * dy) / det);
+                double c[3];
+                ramp.eval(std::sqrt(x * x + y * y), c);
+                for (int k = 0; k < 3; ++k) ref[k] += w * c[k];
+                mass += w;
+            }
+        for (int k = 0; k < 3; ++k)
+            EXPECT_NEAR(out[k], ref[k] / mass, 2e-3) << "mean (" << g.mx << ", " << g.my << ") channel " << k;
+    }
+}

@@ -428,57 +428,79 @@ void gaussian_average_steepness(const Ramp &ramp, const SlopeGaussian &g, double
     const int ch = ramp.channels();
     const double sxx = std::max(0.0, g.sxx), syy = std::max(0.0, g.syy);
     const double tr = sxx + syy, dd = std::sqrt(std::max(0.0, 0.25 * (sxx - syy) * (sxx - syy) + g.sxy * g.sxy));
-    const double smax = std::sqrt(0.5 * tr + dd);
+    const double smax = std::sqrt(0.5 * tr + dd), smin = std::sqrt(std::max(0.0, 0.5 * tr - dd));
     const double mlen = std::sqrt(g.mx * g.mx + g.my * g.my);
-    auto smooth_rule = [&]() {
+    if (!(smax > 0.0) || smax < 0.2 * mlen || !std::isfinite(smax) || !std::isfinite(mlen)) {
+        // |s| is smooth over the whole distribution: Gauss-Hermite converges fast.
         gaussian_expectation_2d(g, 12, ch, [&](double x, double y, double *o) { ramp.eval(std::sqrt(x * x + y * y), o); },
                                 out);
-    };
-    if (!(smax > 0.0) || smax < 0.2 * mlen || !std::isfinite(smax) || !std::isfinite(mlen)) {
-        smooth_rule();
         return;
     }
-    // Regularised inverse covariance.
+    // Polar coordinates about s = 0. Along a direction u the density is r N(r u) =
+    // norm K(u) r exp(-(r - m)^2 / (2 s^2)) with a = u^T P u, b = u^T P mean, m = b / a, s^2 = 1 / a,
+    // K = exp(-(c - b^2 / a) / 2), c = mean^T P mean (P = Sigma^-1): on each piece of the ramp
+    // (alpha + beta r) the radial integral is closed-form in the partial moments of phi. The angle
+    // is integrated by the trapezoid rule (periodic and smooth: spectral accuracy) with enough
+    // nodes for the distribution's angular width seen from s = 0.
     const double eps = 1e-12 * tr + 1e-300;
-    const double a = sxx + eps, b = g.sxy, c = syy + eps;
-    const double det = std::max(a * c - b * b, 1e-30 * a * c);
-    const double ia = c / det, ib = -b / det, ic = a / det, norm = 1.0 / (2.0 * kPi * std::sqrt(det));
-    std::vector<double> brk{0.0};
-    const double rmax = mlen + 8.0 * smax;
-    for (double x : ramp.x())
-        if (x > 0.0 && x < rmax) brk.push_back(x);
-    brk.push_back(rmax);
-    static const double gx[6] = {0.033765242898423989, 0.16939530676686775, 0.38069040695840156,
-                                 0.61930959304159844, 0.83060469323313225, 0.96623475710157601};
-    static const double gw[6] = {0.085662246189585178, 0.18038078652406930, 0.23395696728634552,
-                                 0.23395696728634552, 0.18038078652406930, 0.085662246189585178};
-    constexpr int nphi = 64;
-    double cs[nphi], sn[nphi];
-    for (int k = 0; k < nphi; ++k) cs[k] = std::cos(2 * kPi * k / nphi), sn[k] = std::sin(2 * kPi * k / nphi);
-    std::vector<double> acc(ch, 0.0), col(ch);
+    const double A = sxx + eps, B = g.sxy, Cc = syy + eps;
+    const double det = std::max(A * Cc - B * B, 1e-30 * A * Cc);
+    const double pa = Cc / det, pb = -B / det, pc = A / det;
+    const double c0 = pa * g.mx * g.mx + 2 * pb * g.mx * g.my + pc * g.my * g.my;
+    const double width = std::max(1e-3, smin / std::max(mlen, smax));  // radians, roughly
+    const int nphi = std::clamp(int(std::ceil(2.0 * kPi / (0.7 * width))), 16, 256);
+    const std::vector<double> &xs = ramp.x(), &vs = ramp.values();
+    const size_t nstops = xs.size();
+    std::vector<double> acc(static_cast<size_t>(ch), 0.0), al(static_cast<size_t>(ch)), be(static_cast<size_t>(ch));
     double mass = 0;
-    for (size_t i = 0; i + 1 < brk.size(); ++i) {
-        const int pieces = std::max(1, int(std::ceil((brk[i + 1] - brk[i]) / (0.5 * smax))));
-        const double len = (brk[i + 1] - brk[i]) / pieces;
-        for (int q = 0; q < pieces; ++q)
-            for (int k = 0; k < 6; ++k) {
-                const double r = brk[i] + len * (q + gx[k]);
-                double pr = 0;
-                for (int j = 0; j < nphi; ++j) {
-                    const double dx = r * cs[j] - g.mx, dy = r * sn[j] - g.my;
-                    pr += std::exp(-0.5 * (ia * dx * dx + 2 * ib * dx * dy + ic * dy * dy));
+    for (int k = 0; k < nphi; ++k) {
+        const double phi = 2.0 * kPi * k / nphi, ux = std::cos(phi), uy = std::sin(phi);
+        const double a = pa * ux * ux + 2 * pb * ux * uy + pc * uy * uy;
+        const double b = pa * ux * g.mx + pb * (ux * g.my + uy * g.mx) + pc * uy * g.my;
+        if (!(a > 0.0)) continue;
+        const double m = b / a, sd = 1.0 / std::sqrt(a);
+        const double lk = -0.5 * (c0 - b * b / a);
+        if (lk < -700.0) continue;
+        const double K = std::exp(lk) * sd;  // with the 1/sqrt(2 pi) of phi folded into norm below
+        // Pieces in r: [0, x_i] ... with C = alpha + beta r; constant beyond the end stops.
+        auto piece = [&](double r0, double r1, const double *alpha, const double *beta) {
+            if (!(r1 > r0)) return;
+            double M[3];
+            normal_partial_moments((r0 - m) / sd, std::isinf(r1) ? INFINITY : (r1 - m) / sd, M);
+            // int r (alpha + beta r) phi dz with r = m + sd z
+            const double I1 = m * M[0] + sd * M[1];                          // int r
+            const double I2 = m * m * M[0] + 2 * m * sd * M[1] + sd * sd * M[2];  // int r^2
+            mass += K * I1;
+            for (int c = 0; c < ch; ++c) acc[size_t(c)] += K * (alpha[c] * I1 + (beta ? beta[c] * I2 : 0.0));
+        };
+        double r = 0.0;
+        size_t s0 = 0;
+        while (s0 < nstops && xs[s0] <= 0.0) ++s0;  // stops at or below r = 0
+        // Below the first positive stop: the ramp between stop s0 - 1 and s0 (or constant).
+        for (size_t i = s0; i <= nstops; ++i) {
+            const double r1 = i < nstops ? xs[i] : INFINITY;
+            if (i == 0 || i == nstops) {  // constant beyond an end stop
+                const size_t e = i == 0 ? 0 : nstops - 1;
+                for (int c = 0; c < ch; ++c) al[size_t(c)] = vs[e * size_t(ch) + size_t(c)];
+                piece(r, r1, al.data(), nullptr);
+            } else {
+                const double dx = xs[i] - xs[i - 1];
+                for (int c = 0; c < ch; ++c) {
+                    const double v0 = vs[(i - 1) * size_t(ch) + size_t(c)], v1 = vs[i * size_t(ch) + size_t(c)];
+                    be[size_t(c)] = (v1 - v0) / dx;
+                    al[size_t(c)] = v0 - be[size_t(c)] * xs[i - 1];
                 }
-                const double w = gw[k] * len * r * pr * norm * (2 * kPi / nphi);
-                ramp.eval(r, col.data());
-                for (int cc = 0; cc < ch; ++cc) acc[cc] += w * col[cc];
-                mass += w;
+                piece(r, r1, al.data(), be.data());
             }
+            r = r1;
+        }
     }
     if (!(mass > 0.0)) {
-        smooth_rule();
+        gaussian_expectation_2d(g, 12, ch, [&](double x, double y, double *o) { ramp.eval(std::sqrt(x * x + y * y), o); },
+                                out);
         return;
     }
-    for (int cc = 0; cc < ch; ++cc) out[cc] = acc[cc] / mass;
+    for (int c = 0; c < ch; ++c) out[c] = acc[size_t(c)] / mass;
 }
 
 Vec3 slope_to_normal(double sx, double sy) {

@@ -184,13 +184,14 @@ void gaussian_expectation_2d(const SlopeGaussian &g, int n, int channels,
                              const std::function<void(double sx, double sy, double *out)> &f, double *out);
 
 /// E[C(|s|)] for s ~ N(mean, Sigma) and a Ramp C of the steepness |s| (paper 001 §5.2 with a
-/// colour map on the slope's magnitude): C(|s|) has a cusp at s = 0 and kinks at the stops, on
+/// colour map on the slope's magnitude). C(|s|) has a cusp at s = 0 and kinks at the stops, on
 /// which tensor Gauss-Hermite converges slowly (8 x 8: 4% error). When the spread is at least
-/// 0.2 |mean| it integrates in polar coordinates about s = 0: radius by 6-point Gauss-Legendre on
-/// pieces split at every stop and at most sigma_max / 2 long, out to |mean| + 8 sigma_max,
-/// angle by the 64-point trapezoid rule (periodic: spectral accuracy), normalised by the
-/// integrated mass; otherwise |s| is smooth over the distribution and 12 x 12 Gauss-Hermite is
-/// used. Error < 1e-3 on the tests' kinked ramps.
+/// 0.2 |mean| it integrates in polar coordinates about s = 0: along each direction the radial
+/// integral of the piecewise-linear C against the Gaussian is closed-form (partial moments of phi
+/// on every ramp piece), and the angle takes the trapezoid rule (periodic: spectral accuracy) with
+/// 16-256 nodes by the distribution's angular width; normalised by the integrated mass.
+/// Otherwise |s| is smooth over the distribution and 12 x 12 Gauss-Hermite is used. Within 2e-3
+/// of brute-force quadrature (TransferFilter.SteepnessAverageMatchesBruteForce).
 void gaussian_average_steepness(const Ramp &ramp, const SlopeGaussian &g, double *out);
 
 /// The unit micro-normal of slope (sx, sy): (-sx, -sy, 1) / sqrt(1 + sx^2 + sy^2).
