@@ -365,3 +365,34 @@ TEST(LeadrColormap, EvalCost) {
         std::printf("[ cost     ] leadr diffuse eval, colormap %s: %.2f us\n", name, us);
     }
 }
+
+TEST(CombineTexture, WeightedSumAndProductOfTerms) {
+    auto make = [](const json &j) { return create_texture(Properties(j, "texture", std::make_shared<LoadContext>())); };
+    const json terms = json::array({{{"texture", json::array({0.2, 0.4, 0.6})}, {"weight", 0.5}},
+                                    {{"texture", {{"type", "constant"}, {"value", 0.3}}}},
+                                    {{"texture", {{"type", "microcolormap"}, {"attribute", "height"},
+                                                  {"colormap", json::array({json::array({0, 0}), json::array({1, 1})})}}},
+                                     {"weight", 2}}});
+    ShadingContext ctx;
+    ctx.micro_height = 0.25f;
+    const Spectrum s = make({{"type", "combine"}, {"terms", terms}})->eval(ctx);
+    const Spectrum p = make({{"type", "combine"}, {"op", "product"}, {"terms", terms}})->eval(ctx);
+    const float want_s[3] = {0.1f + 0.3f + 0.5f, 0.2f + 0.3f + 0.5f, 0.3f + 0.3f + 0.5f};
+    const float want_p[3] = {0.1f * 0.3f * 0.5f, 0.2f * 0.3f * 0.5f, 0.3f * 0.3f * 0.5f};
+    for (int c = 0; c < 3; ++c) {
+        EXPECT_NEAR(s[c], want_s[c], 1e-6f) << c;
+        EXPECT_NEAR(p[c], want_p[c], 1e-6f) << c;
+    }
+    for (const auto &[bad, key] : std::vector<std::pair<json, std::string>>{
+             {{{"type", "combine"}, {"op", "max"}, {"terms", terms}}, "texture.op"},
+             {{{"type", "combine"}, {"terms", json::array()}}, "texture.terms"},
+             {{{"type", "combine"}, {"terms", json::array({{{"weight", 1}}})}}, "texture.terms[0].texture"},
+             {{{"type", "combine"}, {"terms", json::array({{{"texture", 1}, {"wieght", 1}}})}}, "wieght"}}) {
+        try {
+            make(bad);
+            ADD_FAILURE() << bad.dump();
+        } catch (const MesoError &e) {
+            EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
+        }
+    }
+}
