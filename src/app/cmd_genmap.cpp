@@ -16,6 +16,7 @@
 #include <memory>
 #include <nlohmann/json.hpp>
 #include "app/commands.h"
+#include "core/text_file.h"
 #include "core/error.h"
 #include "geometry/heightmap_gen.h"
 #include "meso_version.h"
@@ -74,17 +75,7 @@ Image shaded_relief(const HeightMap &m, double exaggeration) {
     return img;
 }
 
-void write_record(const std::string &path, const nlohmann::json &rec) {
-    std::string tmp = path + ".tmp";
-    std::ofstream f(tmp);
-    f << rec.dump(2) << "\n";
-    f.close();
-    std::error_code ec;
-    if (!f || (fs::rename(tmp, path, ec), ec)) {
-        fs::remove(tmp, ec);
-        throw MesoError(fmt::format("cannot write '{}'", path));
-    }
-}
+void write_record(const std::string &path, const nlohmann::json &rec) { write_text_atomic(path, rec.dump(2) + "\n"); }
 
 int run_genmap(const GenmapOptions &o) {
     if (o.list) {

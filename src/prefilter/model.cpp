@@ -1,5 +1,6 @@
 // Prefiltered LoD model: tables, lookups, directory I/O (see model.h for the layout).
 #include "prefilter/model.h"
+#include "core/text_file.h"
 #include <OpenImageIO/imageio.h>
 #include <tbb/parallel_for.h>
 #include <algorithm>
@@ -281,13 +282,8 @@ void PrefilteredModel::save(const std::string &out) const {
         levels_j.push_back(lj);
     }
     j["levels"] = levels_j;
-    const fs::path mf = fs::path(out) / "manifest.json", tmp = fs::path(out) / "manifest.json.tmp";
-    {
-        std::ofstream o(tmp);
-        if (!o) throw MesoError(fmt::format("{}: cannot write", tmp.string()));
-        o << j.dump(2) << "\n";
-    }
-    fs::rename(tmp, mf);  // the manifest last: a directory without it is not a model
+    // The manifest last, atomically: a directory without it is not a model.
+    write_text_atomic((fs::path(out) / "manifest.json").string(), j.dump(2) + "\n");
 }
 
 const PrefilteredLevel *PrefilteredModel::level_for_factor(int factor) const {
