@@ -17,13 +17,13 @@
 #include <cmath>
 #include "core/error.h"
 #include "geometry/shape.h"
-#include "image/colormap.h"
-#include "render/lod.h"
+#include "image/false_colour.h"
+#include "geometry/lod.h"
 #include "render/integrator.h"
-#include "render/material.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
-#include "scene/scene.h"
+#include "bsdf/material.h"
+#include "core/properties.h"
+#include "core/registry.h"
+#include "render/scene.h"
 
 namespace meso {
 namespace {

@@ -35,13 +35,13 @@
 //   eta                   float          —        > 0; absent = no Fresnel (F = 1)
 #include <fmt/format.h>
 #include <optional>
-#include "render/fresnel.h"
-#include "render/material.h"
-#include "render/microfacet.h"
-#include "render/texture.h"
+#include "bsdf/fresnel.h"
+#include "bsdf/material.h"
+#include "bsdf/microfacet.h"
+#include "texture/texture.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -16,9 +16,9 @@
 // Parameters: the same as `lean`
 //   heightmap | mean_slope + covariance, filter, max_anisotropy, exponent | alpha,
 //   material, specular_reflectance, rational_lambda  (see materials/lean.cpp)
-#include "render/gaussian_microfacet.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/gaussian_microfacet.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

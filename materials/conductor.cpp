@@ -26,12 +26,12 @@
 //   sample_visible        bool      true     visible-normal sampling
 #include <fmt/format.h>
 #include <optional>
-#include "render/fresnel.h"
-#include "render/material.h"
-#include "render/microfacet.h"
-#include "render/texture.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/fresnel.h"
+#include "bsdf/material.h"
+#include "bsdf/microfacet.h"
+#include "texture/texture.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

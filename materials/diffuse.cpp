@@ -9,11 +9,11 @@
 //   name         type     default  range
 //   reflectance  texture  0.5      [0, 1] per channel (albedo)
 #include <fmt/format.h>
-#include "render/material.h"
-#include "render/texture.h"
+#include "bsdf/material.h"
+#include "texture/texture.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -95,16 +95,16 @@
 #include <optional>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
-#include "render/fresnel.h"
-#include "render/leadr_quadrature.h"
-#include "render/material.h"
-#include "render/slope_distribution.h"
-#include "render/texture.h"
-#include "render/transfer_filter.h"
-#include "texture/ramp_parse.h"
+#include "bsdf/fresnel.h"
+#include "bsdf/leadr_quadrature.h"
+#include "bsdf/material.h"
+#include "bsdf/slope_distribution.h"
+#include "texture/texture.h"
+#include "filter/transfer_filter.h"
+#include "filter/ramp_parse.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "texture/slope_source.h"
 
 namespace meso {
@@ -155,7 +155,7 @@ struct LeadrParams {
     bool cmap_product = false;
 };
 
-class Leadr final : public Material, public EnvQuadratureShading {
+class Leadr final : public Material {
 public:
     explicit Leadr(LeadrParams p) : m_p(std::move(p)) {
         if (m_p.source.is_constant()) {
@@ -227,6 +227,7 @@ public:
         return a;
     }
 
+    bool has_env_quadrature() const override { return true; }
     Spectrum env_radiance(const ShadingContext &ctx, const Vec3 &wo, const PrefilteredEnvironment &env) const override {
         Point pt;
         if (!point(ctx, pt) || !view(pt, wo)) return Spectrum(0.f);

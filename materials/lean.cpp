@@ -32,9 +32,9 @@
 //   material              string        none       conductor preset for F (Ag, Al, Au, Cr, Cu, Ni, W); none: F = 1
 //   specular_reflectance  texture       1          multiplies F
 //   rational_lambda       bool          false      Walter's rational Lambda instead of the erfc form
-#include "render/gaussian_microfacet.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/gaussian_microfacet.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

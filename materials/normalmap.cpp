@@ -35,9 +35,9 @@
 #include <cmath>
 #include <fmt/format.h>
 #include <optional>
-#include "render/material.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/material.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "texture/normal_source.h"
 #include "texture/slope_source.h"
 

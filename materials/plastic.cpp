@@ -47,12 +47,12 @@
 #include <optional>
 #include <tuple>
 #include <vector>
-#include "render/fresnel.h"
-#include "render/material.h"
-#include "render/microfacet.h"
-#include "render/texture.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/fresnel.h"
+#include "bsdf/material.h"
+#include "bsdf/microfacet.h"
+#include "texture/texture.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "sampling/warp.h"
 
 namespace meso {

@@ -70,9 +70,9 @@
 #include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "prefilter/model.h"
-#include "render/material.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/material.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

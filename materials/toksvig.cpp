@@ -36,12 +36,12 @@
 #include <cmath>
 #include <fmt/format.h>
 #include <memory>
-#include "render/fresnel.h"
-#include "render/material.h"
-#include "render/microfacet.h"
-#include "render/texture.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/fresnel.h"
+#include "bsdf/material.h"
+#include "bsdf/microfacet.h"
+#include "texture/texture.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "texture/normal_source.h"
 
 namespace meso {

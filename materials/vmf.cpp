@@ -62,14 +62,14 @@
 #include <optional>
 #include <nlohmann/json.hpp>
 #include "core/error.h"
-#include "render/fresnel.h"
-#include "render/material.h"
-#include "render/slope_distribution.h"
-#include "render/texture.h"
-#include "render/vmf.h"
+#include "bsdf/fresnel.h"
+#include "bsdf/material.h"
+#include "bsdf/slope_distribution.h"
+#include "texture/texture.h"
+#include "filter/vmf.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "texture/normal_source.h"
 #include "texture/vmf_map.h"
 

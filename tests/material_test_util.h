@@ -5,9 +5,9 @@
 #include <nlohmann/json.hpp>
 #include <string>
 #include "core/vec.h"
-#include "render/material.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/material.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso::test {
 

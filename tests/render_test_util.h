@@ -4,7 +4,7 @@
 #include <fstream>
 #include <string>
 #include "render/renderer.h"
-#include "scene/scene.h"
+#include "render/scene.h"
 
 namespace meso::test {
 

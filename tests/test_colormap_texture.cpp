@@ -10,9 +10,9 @@
 #include <nlohmann/json.hpp>
 #include <random>
 #include "core/error.h"
-#include "render/texture.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "texture/texture.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "scratch_dir.h"
 #include "texture_test_util.h"
 

@@ -8,7 +8,7 @@
 #include "geometry/interaction.h"
 #include "render/camera.h"
 #include "render/differentials.h"
-#include "render/material.h"
+#include "bsdf/material.h"
 #include "render_test_util.h"
 
 using namespace meso;

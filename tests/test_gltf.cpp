@@ -9,10 +9,10 @@
 #include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "geometry/shape.h"
-#include "render/light.h"
+#include "lights/light.h"
 #include "scene/gltf.h"
-#include "scene/registry.h"
-#include "scene/scene.h"
+#include "core/registry.h"
+#include "render/scene.h"
 
 using namespace meso;
 using json = nlohmann::json;

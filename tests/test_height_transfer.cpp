@@ -15,11 +15,11 @@
 #include "geometry/heightmap_gen.h"
 #include "geometry/shell_shape.h"
 #include "render_test_util.h"
-#include "scene/scene.h"
-#include "render/transfer_filter.h"
+#include "render/scene.h"
+#include "filter/transfer_filter.h"
 #include "sampling/rng.h"
-#include "scene/properties.h"
-#include "texture/ramp_parse.h"
+#include "core/properties.h"
+#include "filter/ramp_parse.h"
 #include "texture/slope_source.h"
 
 using namespace meso;

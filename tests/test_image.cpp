@@ -9,7 +9,7 @@
 #include <nlohmann/json.hpp>
 #include "app/commands.h"
 #include "core/error.h"
-#include "image/colormap.h"
+#include "image/false_colour.h"
 #include "image/image.h"
 
 using namespace meso;

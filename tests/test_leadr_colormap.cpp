@@ -9,13 +9,13 @@
 #include "core/error.h"
 #include "geometry/interaction.h"
 #include "material_test_util.h"
-#include "render/leadr_quadrature.h"
-#include "render/slope_distribution.h"
-#include "render/texture.h"
-#include "render/transfer_filter.h"
+#include "bsdf/leadr_quadrature.h"
+#include "bsdf/slope_distribution.h"
+#include "texture/texture.h"
+#include "filter/transfer_filter.h"
 #include "render_test_util.h"
 #include "sampling/rng.h"
-#include "scene/scene.h"
+#include "render/scene.h"
 
 using namespace meso;
 using meso::test::dir_deg;
@@ -168,7 +168,7 @@ TEST(LeadrColormap, SlopeXMatchesTheVisibleSlopeDistribution) {
                 err += std::abs(f[c] - num[c] / den);
                 err_naive += std::abs(ramp(mx, c) - num[c] / den);
             }
-            if (to >= 40.0) EXPECT_LT(err, 0.5 * err_naive) << "theta " << to << " phi " << phi;
+            if (to >= 40.0) { EXPECT_LT(err, 0.5 * err_naive) << "theta " << to << " phi " << phi; }
         }
 }
 

@@ -15,11 +15,11 @@
 #include "geometry/shape.h"
 #include "lights/envmap.h"
 #include "lights/spherical_triangle.h"
-#include "render/light.h"
+#include "lights/light.h"
 #include "sampling/rng.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 using namespace meso;
 using json = nlohmann::json;

@@ -4,7 +4,7 @@
 #include <limits>
 #include "core/error.h"
 #include "geometry/shape.h"
-#include "render/lod.h"
+#include "geometry/lod.h"
 #include "render_test_util.h"
 #include <fmt/format.h>
 #include <cstdio>

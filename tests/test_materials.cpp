@@ -20,14 +20,14 @@
 #include <string>
 #include <vector>
 #include "core/error.h"
-#include "render/fresnel.h"
-#include "render/material.h"
-#include "render/microfacet.h"
-#include "sampling/chi2.h"
+#include "bsdf/fresnel.h"
+#include "bsdf/material.h"
+#include "bsdf/microfacet.h"
+#include "bsdf/chi2.h"
 #include "sampling/rng.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 using namespace meso;
 

@@ -18,8 +18,8 @@
 #include "material_test_util.h"
 #include "prefilter/multilobe_brdf.h"
 #include "prefilter/patch_ndf.h"
-#include "render/vmf.h"
-#include "sampling/chi2.h"
+#include "filter/vmf.h"
+#include "bsdf/chi2.h"
 #include "sampling/rng.h"
 
 using namespace meso;

@@ -18,7 +18,7 @@
 #include "geometry/heightfield.h"
 #include "geometry/heightmap_gen.h"
 #include "prefilter/patch_ndf.h"
-#include "render/vmf.h"
+#include "filter/vmf.h"
 
 using namespace meso;
 using namespace meso::prefilter;

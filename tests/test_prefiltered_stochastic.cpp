@@ -22,7 +22,7 @@
 #include "prefilter/model.h"
 #include "prefilter/patch_ndf.h"
 #include "render_test_util.h"
-#include "sampling/chi2.h"
+#include "bsdf/chi2.h"
 #include "sampling/rng.h"
 #include "sampling/warp.h"
 #include "scratch_dir.h"

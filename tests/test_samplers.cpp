@@ -8,8 +8,8 @@
 #include <vector>
 #include "sampling/owen.h"
 #include "sampling/sampler.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 using namespace meso;
 

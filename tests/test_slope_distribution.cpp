@@ -5,8 +5,8 @@
 #include <cmath>
 #include <cstdio>
 #include <vector>
-#include "render/slope_distribution.h"
-#include "sampling/chi2.h"
+#include "bsdf/slope_distribution.h"
+#include "bsdf/chi2.h"
 #include "sampling/rng.h"
 
 using namespace meso;

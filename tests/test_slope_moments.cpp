@@ -162,7 +162,7 @@ TEST(SlopeMoments, DistortionFromTheParameterisation) {
 
 #include <nlohmann/json.hpp>
 #include "geometry/heightmap_gen.h"
-#include "scene/properties.h"
+#include "core/properties.h"
 #include "texture/slope_source.h"
 
 namespace {

@@ -11,10 +11,10 @@
 #include <nlohmann/json.hpp>
 #include <unistd.h>
 #include "core/error.h"
-#include "render/texture.h"
+#include "texture/texture.h"
 #include "sampling/rng.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "texture/mipmap.h"
 
 using namespace meso;
@@ -25,13 +25,6 @@ namespace {
 
 /// Per-process scratch directory, removed at exit.
 std::string tmp_dir() { return meso::test::scratch_dir("meso_test_textures"); }
-
-std::shared_ptr<LoadContext> scene_ctx() {
-    auto ctx = std::make_shared<LoadContext>();
-    ctx->file = "scene.json";
-    ctx->base_dir = tmp_dir();
-    return ctx;
-}
 
 std::shared_ptr<Texture> make_texture(const json &j) { return meso::test::make_texture_in(tmp_dir(), j); }
 std::string texture_error(const json &j) { return meso::test::texture_error_in(tmp_dir(), j); }

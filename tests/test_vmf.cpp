@@ -10,11 +10,11 @@
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
-#include "render/material.h"
-#include "render/vmf.h"
+#include "bsdf/material.h"
+#include "filter/vmf.h"
 #include "sampling/rng.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "material_test_util.h"
 #include "texture/vmf_map.h"
 

@@ -20,8 +20,8 @@
 #include <ctime>
 #include <vector>
 #include "core/error.h"
-#include "render/vmf.h"
-#include "render/vmf_mixture.h"
+#include "filter/vmf.h"
+#include "bsdf/vmf_mixture.h"
 #include "sampling/rng.h"
 
 using namespace meso;

@@ -5,9 +5,9 @@
 #include <nlohmann/json.hpp>
 #include <string>
 #include "core/error.h"
-#include "render/texture.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "texture/texture.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso::test {
 

@@ -11,8 +11,8 @@
 #include <limits>
 #include <vector>
 #include "core/error.h"
-#include "render/slope_distribution.h"
-#include "render/transfer_filter.h"
+#include "bsdf/slope_distribution.h"
+#include "filter/transfer_filter.h"
 #include "sampling/rng.h"
 
 namespace meso::test::tf {

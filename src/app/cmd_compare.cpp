@@ -18,7 +18,7 @@
 #include <string>
 #include "app/commands.h"
 #include "core/error.h"
-#include "image/colormap.h"
+#include "image/false_colour.h"
 #include "image/image.h"
 
 namespace meso {

@@ -6,7 +6,7 @@
 #include "core/distributed.h"
 #include "geometry/embree_accel.h"
 #include "meso_version.h"
-#include "scene/registry.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

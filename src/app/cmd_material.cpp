@@ -19,10 +19,10 @@
 #include <sstream>
 #include "app/commands.h"
 #include "core/error.h"
-#include "render/material.h"
-#include "sampling/chi2.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "bsdf/material.h"
+#include "bsdf/chi2.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

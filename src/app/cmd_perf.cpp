@@ -23,7 +23,7 @@
 #include "render/renderer.h"
 #include "sampling/rng.h"
 #include "sampling/warp.h"
-#include "scene/scene.h"
+#include "render/scene.h"
 
 namespace meso {
 namespace {

@@ -28,9 +28,9 @@
 #include "prefilter/model.h"
 #include "prefilter/patch_ndf.h"
 #include "prefilter/scaling.h"
-#include "render/progress.h"
+#include "core/progress.h"
 #include "sampling/rng.h"
-#include "scene/registry.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -17,7 +17,7 @@
 #include "meso_version.h"
 #include "render/renderer.h"
 #include "geometry/shape.h"
-#include "scene/scene.h"
+#include "render/scene.h"
 
 namespace meso {
 namespace {

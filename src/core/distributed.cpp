@@ -10,7 +10,8 @@
 namespace meso::dist {
 
 namespace {
-bool g_active = false, g_initialised_here = false;
+bool g_active = false;
+[[maybe_unused]] bool g_initialised_here = false;  // unused without MPI
 int g_rank = 0, g_size = 1, g_local = 1;
 
 bool launched_by_mpi() {

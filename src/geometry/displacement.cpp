@@ -4,9 +4,9 @@
 #include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "geometry/heightmap_gen.h"
-#include "render/transfer_filter.h"
-#include "scene/properties.h"
-#include "texture/ramp_parse.h"
+#include "filter/transfer_filter.h"
+#include "core/properties.h"
+#include "filter/ramp_parse.h"
 
 namespace meso {
 

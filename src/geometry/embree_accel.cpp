@@ -4,7 +4,7 @@
 #include <fmt/format.h>
 #include "core/error.h"
 #include "geometry/shape.h"
-#include "render/lod.h"
+#include "geometry/lod.h"
 
 namespace meso {
 

@@ -3,7 +3,7 @@
 #include <limits>
 #include "core/frame.h"
 #include "core/ray.h"
-#include "render/shading.h"
+#include "geometry/shading.h"
 
 namespace meso {
 

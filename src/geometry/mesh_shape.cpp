@@ -4,9 +4,9 @@
 #include "geometry/shell_shape.h"
 #include "geometry/tessellate.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
-#include "scene/transform_parse.h"
+#include "core/properties.h"
+#include "core/registry.h"
+#include "core/transform_parse.h"
 
 namespace meso {
 

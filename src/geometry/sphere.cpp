@@ -7,8 +7,8 @@
 #include "geometry/mesh_shape.h"
 #include "geometry/shape.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -36,11 +36,11 @@
 #include "core/error.h"
 #include "geometry/shape.h"
 #include "lights/spherical_triangle.h"
-#include "render/light.h"
+#include "lights/light.h"
 #include "sampling/distribution.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -9,10 +9,10 @@
 // Parameters (Mitsuba 3 names):
 //   radiance   spectrum  default 1   >= 0
 #include <fmt/format.h>
-#include "render/light.h"
+#include "lights/light.h"
 #include "sampling/warp.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

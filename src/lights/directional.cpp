@@ -11,9 +11,9 @@
 //                                           must be non-zero)
 //   irradiance  spectrum  default 1         W/m^2, >= 0
 #include <fmt/format.h>
-#include "render/light.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "lights/light.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -34,9 +34,9 @@
 #include "lights/envmap.h"
 #include <fmt/format.h>
 #include "core/error.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
-#include "scene/transform_parse.h"
+#include "core/properties.h"
+#include "core/registry.h"
+#include "core/transform_parse.h"
 
 namespace meso {
 

@@ -6,7 +6,7 @@
 #include <string>
 #include "core/transform.h"
 #include "image/image.h"
-#include "render/light.h"
+#include "lights/light.h"
 #include "sampling/distribution.h"
 
 namespace meso {

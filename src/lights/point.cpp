@@ -8,9 +8,9 @@
 //   position    vec3      default [0,0,0]   world position
 //   intensity   spectrum  default 1         radiant intensity, W/sr, >= 0
 #include <fmt/format.h>
-#include "render/light.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "lights/light.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

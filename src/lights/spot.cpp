@@ -16,9 +16,9 @@
 //   beam_width    float     default 3/4 cutoff    degrees, in [0, cutoff]: full intensity within
 #include <fmt/format.h>
 #include "core/frame.h"
-#include "render/light.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "lights/light.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

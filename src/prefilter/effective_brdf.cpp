@@ -9,7 +9,7 @@
 #include <vector>
 #include "core/error.h"
 #include "core/frame.h"
-#include "render/shading.h"
+#include "geometry/shading.h"
 #include "sampling/rng.h"
 #include "sampling/warp.h"
 #include "prefilter/micro_vertex.h"

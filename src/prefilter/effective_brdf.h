@@ -67,7 +67,7 @@
 #include "core/spectrum.h"
 #include "core/vec.h"
 #include "geometry/heightfield.h"
-#include "render/material.h"
+#include "bsdf/material.h"
 
 namespace meso::prefilter {
 

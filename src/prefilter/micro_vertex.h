@@ -8,7 +8,7 @@
 #include <algorithm>
 #include "core/frame.h"
 #include "geometry/heightfield.h"
-#include "render/shading.h"
+#include "geometry/shading.h"
 #include "prefilter/effective_brdf.h"
 
 namespace meso::prefilter::detail {

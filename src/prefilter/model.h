@@ -42,7 +42,7 @@
 #include "image/image.h"
 #include "prefilter/multilobe_brdf.h"
 #include "prefilter/patch_ndf.h"
-#include "render/material.h"
+#include "bsdf/material.h"
 
 namespace meso::prefilter {
 

@@ -7,7 +7,7 @@
 #include <cmath>
 #include "core/error.h"
 #include "core/quadrature.h"
-#include "render/vmf.h"
+#include "filter/vmf.h"
 
 namespace meso::prefilter {
 

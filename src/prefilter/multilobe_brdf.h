@@ -94,7 +94,7 @@
 #include <vector>
 #include "core/frame.h"
 #include "prefilter/patch_ndf.h"
-#include "render/material.h"
+#include "bsdf/material.h"
 
 namespace meso::prefilter {
 

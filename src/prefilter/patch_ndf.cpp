@@ -10,7 +10,7 @@
 #include <cmath>
 #include <fmt/format.h>
 #include "core/error.h"
-#include "render/vmf.h"
+#include "filter/vmf.h"
 
 namespace meso::prefilter {
 

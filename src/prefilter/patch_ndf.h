@@ -63,7 +63,7 @@
 #include <vector>
 #include "core/vec.h"
 #include "geometry/heightfield.h"
-#include "render/vmf_mixture.h"
+#include "bsdf/vmf_mixture.h"
 #include "texture/vmf_map.h"
 
 namespace meso::prefilter {

@@ -58,7 +58,7 @@
 #include "geometry/heightfield.h"
 #include "prefilter/effective_brdf.h"
 #include "prefilter/model.h"
-#include "render/material.h"
+#include "bsdf/material.h"
 
 namespace meso::prefilter {
 

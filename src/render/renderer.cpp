@@ -13,9 +13,9 @@
 #include <fmt/format.h>
 #include "core/distributed.h"
 #include "core/error.h"
-#include "render/progress.h"
+#include "core/progress.h"
 #include "sampling/sampler.h"
-#include "scene/scene.h"
+#include "render/scene.h"
 
 namespace meso {
 

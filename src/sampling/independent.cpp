@@ -12,8 +12,8 @@
 #include <memory>
 #include "sampling/rng.h"
 #include "sampling/sampler.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -28,8 +28,8 @@
 #include "sampling/owen.h"
 #include "sampling/rng.h"
 #include "sampling/sampler.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -17,7 +17,7 @@
 #include <nlohmann/json.hpp>
 #include <tiny_gltf.h>
 #include "core/error.h"
-#include "scene/registry.h"
+#include "core/registry.h"
 
 namespace meso {
 
@@ -420,7 +420,7 @@ void traverse(const std::string &path, const tinygltf::Model &model, Visit visit
 }
 
 std::vector<GltfPrimitive> extract_primitives(const std::string &path, const tinygltf::Model &model) {
-    Loader L{path, model};
+    Loader L{path, model, {}};
     std::vector<GltfPrimitive> out;
     traverse(path, model, [&](int, const tinygltf::Node &n, const Mat4 &world) {
         if (n.mesh < 0) return;

@@ -6,8 +6,8 @@
 #include <sstream>
 #include <nlohmann/json.hpp>
 #include "core/error.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 

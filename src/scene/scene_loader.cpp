@@ -18,15 +18,15 @@
 #include "geometry/displacement.h"
 #include "geometry/shell_shape.h"
 #include "prefilter/model.h"
-#include "render/light.h"
-#include "render/lod.h"
-#include "render/transfer_filter.h"
-#include "render/material.h"
+#include "lights/light.h"
+#include "geometry/lod.h"
+#include "filter/transfer_filter.h"
+#include "bsdf/material.h"
 #include "scene/gltf.h"
 #include "scene/overrides.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
-#include "scene/scene.h"
+#include "core/properties.h"
+#include "core/registry.h"
+#include "render/scene.h"
 
 namespace meso {
 

@@ -17,9 +17,9 @@
 //   color1   texture/spectrum  default 0.2   value of the odd checks
 //   scale    float             default 2     checks per unit of uv, > 0
 #include <fmt/format.h>
-#include "render/texture.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "texture/texture.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

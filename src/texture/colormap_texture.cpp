@@ -118,14 +118,14 @@
 #include "core/error.h"
 #include "core/math.h"
 #include "image/image.h"
-#include "render/texture.h"
-#include "texture/image_param.h"
-#include "render/transfer_filter.h"
+#include "texture/texture.h"
+#include "image/image_param.h"
+#include "filter/transfer_filter.h"
 #include "sampling/rng.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "texture/mipmap.h"
-#include "texture/ramp_parse.h"
+#include "filter/ramp_parse.h"
 
 namespace meso {
 namespace {

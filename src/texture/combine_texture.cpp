@@ -9,9 +9,9 @@
 //                                         inline object or a declared name); weight: float, default 1
 #include <cmath>
 #include <fmt/format.h>
-#include "render/texture.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "texture/texture.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

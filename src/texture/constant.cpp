@@ -2,9 +2,9 @@
 // become this.
 //   value   spectrum   default 1   the value
 #include <fmt/format.h>
-#include "render/texture.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "texture/texture.h"
+#include "core/properties.h"
+#include "core/registry.h"
 
 namespace meso {
 namespace {

@@ -30,10 +30,10 @@
 #include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "image/image.h"
-#include "render/texture.h"
-#include "texture/image_param.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
+#include "texture/texture.h"
+#include "image/image_param.h"
+#include "core/properties.h"
+#include "core/registry.h"
 #include "texture/mipmap.h"
 
 namespace meso {

@@ -22,11 +22,11 @@
 //                                 bitmap for the noise-perturbed heights C(h + r(x)) of §5.1
 #include <cmath>
 #include <fmt/format.h>
-#include "render/texture.h"
-#include "render/transfer_filter.h"
-#include "scene/properties.h"
-#include "scene/registry.h"
-#include "texture/ramp_parse.h"
+#include "texture/texture.h"
+#include "filter/transfer_filter.h"
+#include "core/properties.h"
+#include "core/registry.h"
+#include "filter/ramp_parse.h"
 
 namespace meso {
 namespace {

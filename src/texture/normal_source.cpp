@@ -7,7 +7,7 @@
 #include "geometry/displacement.h"
 #include "geometry/heightfield.h"
 #include "image/image.h"
-#include "scene/properties.h"
+#include "core/properties.h"
 
 namespace meso {
 

@@ -36,7 +36,7 @@
 #include <memory>
 #include <string>
 #include "core/frame.h"
-#include "render/shading.h"
+#include "geometry/shading.h"
 #include "texture/mipmap.h"
 
 namespace meso {

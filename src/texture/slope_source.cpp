@@ -5,8 +5,8 @@
 #include "geometry/displacement.h"
 #include "core/error.h"
 #include "geometry/heightfield.h"
-#include "render/transfer_filter.h"
-#include "scene/properties.h"
+#include "filter/transfer_filter.h"
+#include "core/properties.h"
 
 namespace meso {
 

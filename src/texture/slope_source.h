@@ -39,7 +39,7 @@
 #pragma once
 #include <memory>
 #include <string>
-#include "render/shading.h"
+#include "geometry/shading.h"
 #include "texture/mipmap.h"
 #include "texture/slope_moments.h"
 

@@ -3,7 +3,7 @@
 #include <cmath>
 #include <vector>
 #include "core/error.h"
-#include "render/vmf.h"
+#include "filter/vmf.h"
 
 namespace meso {
 

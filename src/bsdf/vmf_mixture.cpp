@@ -1,0 +1,406 @@
+// Spherical EM for vMF mixtures; see vmf_mixture.h for the method and the degenerate cases.
+#include "bsdf/vmf_mixture.h"
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+#include "core/error.h"
+#include "filter/vmf.h"
+#include "sampling/rng.h"
+
+namespace meso {
+
+namespace vmf {
+
+namespace {
+/// A₃'(κ) = 1/κ² − 1/sinh²κ, stable for all κ > 0 (series below 0.1, where the difference
+/// cancels; 1/sinh² underflows harmlessly to 0 for large κ).
+double mean_cosine_derivative(double k) {
+    if (k < 0.1) {
+        const double k2 = k * k;
+        return 1.0 / 3.0 + k2 * (-1.0 / 15.0 + k2 * (2.0 / 189.0 - k2 / 675.0));
+    }
+    const double s = std::sinh(k);
+    return 1.0 / (k * k) - 1.0 / (s * s);
+}
+}  // namespace
+
+double kappa_from_mean_cosine(double r) {
+    if (!(r > 0.0)) return 0.0;  // also NaN
+    if (r >= 1.0) return kMaxKappa;
+    // A₃ is increasing and concave on (0, ∞) with A₃(0) = 0, A₃(∞) = 1, so the root is unique.
+    // Banerjee's approximation overestimates it (by ~κ³/135 for small κ, ~1/2 for large), so
+    // Newton from there steps to the left of the root and then climbs monotonically; the
+    // bracket [lo, hi] and bisection only guard against rounding.
+    double lo = 0.0, hi = kMaxKappa;
+    if (mean_cosine(hi) <= r) return kMaxKappa;
+    double k = std::clamp(kappa_from_r(r), 0.0, hi);
+    for (int it = 0; it < 200; ++it) {
+        const double f = mean_cosine(k) - r;
+        if (f == 0.0) break;
+        if (f < 0.0) lo = k; else hi = k;
+        const double df = mean_cosine_derivative(k);
+        double kn = k - f / df;
+        if (!(kn > lo && kn < hi)) kn = 0.5 * (lo + hi);
+        if (std::abs(kn - k) <= 1e-15 * k || hi - lo <= 1e-15 * hi) { k = kn; break; }
+        k = kn;
+    }
+    return k;
+}
+
+}  // namespace vmf
+
+namespace {
+
+/// 1 − x·c below which two unit directions count as the same (≈ 1.4e-6 rad; a float unit
+/// vector is only resolved to ~6e-8 rad).
+constexpr double kSameDirection = 1e-12;
+
+/// The usable data: normalised directions and positive weights (rescaled by their maximum),
+/// structure of arrays.
+struct Data {
+    std::vector<double> x, y, z, w;
+    double total = 0.0;
+    size_t size() const { return w.size(); }
+};
+
+Data prepare(const Vec3 *dirs, const double *weights, size_t n) {
+    Data d;
+    double wmax = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+        const double wi = weights ? weights[i] : 1.0;
+        if (!(wi > 0.0) || !std::isfinite(wi)) continue;
+        const double x = dirs[i].x, y = dirs[i].y, z = dirs[i].z;
+        const double l2 = x * x + y * y + z * z;
+        if (!(l2 > 0.0) || !std::isfinite(l2)) continue;
+        const double inv = 1.0 / std::sqrt(l2);
+        d.x.push_back(x * inv);
+        d.y.push_back(y * inv);
+        d.z.push_back(z * inv);
+        d.w.push_back(wi);
+        wmax = std::max(wmax, wi);
+    }
+    for (double &wi : d.w) wi /= wmax;  // no overflow of the sums for any finite scale
+    for (double wi : d.w) d.total += wi;
+    return d;
+}
+
+struct Dir {
+    double x = 0, y = 0, z = 1;
+};
+
+/// 1 − x_i·c = |x_i − c|²/2 for unit vectors (no cancellation for nearby directions).
+inline double chord_half(const Data &d, size_t i, const Dir &c) {
+    const double dx = d.x[i] - c.x, dy = d.y[i] - c.y, dz = d.z[i] - c.z;
+    return 0.5 * (dx * dx + dy * dy + dz * dz);
+}
+
+/// Lobe parameters in double during the fit.
+struct Lobe {
+    Dir mu;
+    double kappa = 0.0, weight = 0.0;
+    int order = 0;  ///< creation index (tie-break of the final sort)
+};
+
+double kappa_of(double r, const VmfEmOptions &opt) {
+    const double k = opt.exact_kappa ? vmf::kappa_from_mean_cosine(r) : vmf::kappa_from_r(r);
+    return std::clamp(k, 0.0, opt.max_kappa);
+}
+
+/// Lobes from weighted resultants R_j and masses N_j (the M-step, also used for the hard
+/// k-means clusters). A zero resultant keeps the previous μ and gives κ = 0.
+void lobes_from_sums(std::vector<Lobe> &lobes, const std::vector<double> &N, const std::vector<Dir> &R,
+                     const VmfEmOptions &opt) {
+    double total = 0.0;
+    for (double v : N) total += v;
+    for (size_t j = 0; j < lobes.size(); ++j) {
+        Lobe &l = lobes[j];
+        l.weight = total > 0.0 ? N[j] / total : 0.0;
+        const double len = std::sqrt(R[j].x * R[j].x + R[j].y * R[j].y + R[j].z * R[j].z);
+        if (len > 0.0 && N[j] > 0.0) {
+            l.mu = {R[j].x / len, R[j].y / len, R[j].z / len};
+            l.kappa = kappa_of(std::min(1.0, len / N[j]), opt);
+        } else {
+            l.kappa = 0.0;
+        }
+    }
+}
+
+/// Drops lobes below min_weight (never the heaviest) and renormalises the weights. Returns
+/// whether any lobe was dropped.
+bool drop_light_lobes(std::vector<Lobe> &lobes, double min_weight) {
+    if (lobes.empty()) return false;
+    size_t heaviest = 0;
+    for (size_t j = 1; j < lobes.size(); ++j)
+        if (lobes[j].weight > lobes[heaviest].weight) heaviest = j;
+    std::vector<Lobe> kept;
+    for (size_t j = 0; j < lobes.size(); ++j)
+        if (j == heaviest || (lobes[j].weight >= min_weight && lobes[j].weight > 0.0)) kept.push_back(lobes[j]);
+    const bool dropped = kept.size() != lobes.size();
+    double total = 0.0;
+    for (const Lobe &l : kept) total += l.weight;
+    for (Lobe &l : kept) l.weight = total > 0.0 ? l.weight / total : 1.0 / double(kept.size());
+    lobes.swap(kept);
+    return dropped;
+}
+
+/// Picks one index per sorted target t in [0, Σ v) by the cumulative sums of v (v ≥ 0);
+/// only indices with v > 0 are returned.
+std::vector<size_t> pick_by_cumulative(const std::vector<double> &v, std::vector<double> targets) {
+    std::sort(targets.begin(), targets.end());
+    std::vector<size_t> out;
+    size_t last_positive = v.size();
+    double cum = 0.0;
+    size_t t = 0;
+    for (size_t i = 0; i < v.size() && t < targets.size(); ++i) {
+        if (!(v[i] > 0.0)) continue;
+        last_positive = i;
+        cum += v[i];
+        while (t < targets.size() && targets[t] < cum) {
+            out.push_back(i);
+            ++t;
+        }
+    }
+    if (last_positive == v.size())
+        for (size_t i = 0; i < v.size(); ++i)
+            if (v[i] > 0.0) last_positive = i;
+    for (; t < targets.size() && last_positive < v.size(); ++t) out.push_back(last_positive);  // rounding
+    return out;
+}
+
+/// Greedy weighted k-means++ on the sphere (header comment): at most K centres, fewer when
+/// every direction coincides with a centre.
+std::vector<Dir> kmeanspp(const Data &d, int K, uint64_t seed) {
+    const size_t n = d.size();
+    PCG32 rng(seed);
+    const int candidates = 2 * (2 + int(std::log(double(K))));
+    std::vector<Dir> centres;
+    std::vector<double> dmin(n, 0.0), v(n), trial(n);
+    for (int c = 0; c < K; ++c) {
+        double potential = 0.0;
+        if (c == 0) {
+            v = d.w;
+            potential = d.total;
+        } else {
+            for (size_t i = 0; i < n; ++i) potential += (v[i] = d.w[i] * dmin[i]);
+        }
+        if (!(potential > 0.0)) break;  // every direction is a centre already
+        // The first centre is a single draw ∝ w_i (choosing it by the potential would give
+        // the medoid of ALL directions, between the clusters, a poor start).
+        std::vector<double> targets(c == 0 ? 1 : candidates);
+        for (double &t : targets) t = rng.next_double() * potential;
+        std::vector<size_t> picks = pick_by_cumulative(v, targets);
+        if (c > 0) {  // plus the farthest direction (first of equals): isolated sharp lobes
+            size_t far = 0;
+            for (size_t i = 1; i < n; ++i)
+                if (dmin[i] > dmin[far]) far = i;
+            picks.push_back(far);
+        }
+        double best = std::numeric_limits<double>::infinity();
+        size_t best_i = picks.empty() ? 0 : picks[0];
+        for (size_t p = 0; p < picks.size(); ++p) {
+            if (std::find(picks.begin(), picks.begin() + p, picks[p]) != picks.begin() + p) continue;
+            const Dir cand{d.x[picks[p]], d.y[picks[p]], d.z[picks[p]]};
+            double pot = 0.0;
+            for (size_t i = 0; i < n; ++i) {
+                double di = chord_half(d, i, cand);
+                if (di < kSameDirection) di = 0.0;
+                pot += d.w[i] * (c == 0 ? di : std::min(di, dmin[i]));
+            }
+            if (pot < best) {
+                best = pot;
+                best_i = picks[p];
+            }
+        }
+        if (picks.empty()) break;
+        const Dir chosen{d.x[best_i], d.y[best_i], d.z[best_i]};
+        centres.push_back(chosen);
+        for (size_t i = 0; i < n; ++i) {
+            double di = chord_half(d, i, chosen);
+            if (di < kSameDirection) di = 0.0;
+            dmin[i] = c == 0 ? di : std::min(di, dmin[i]);
+        }
+    }
+    return centres;
+}
+
+/// Spherical k-means (Lloyd) from the given centres; returns the hard-cluster lobes (empty
+/// clusters removed).
+std::vector<Lobe> spherical_kmeans(const Data &d, std::vector<Dir> centres, const VmfEmOptions &opt,
+                                   double *objective) {
+    const size_t n = d.size();
+    double obj = 0.0;
+    std::vector<int> assign(n, -1);
+    std::vector<double> N;
+    std::vector<Dir> R;
+    for (int it = 0; it < 10; ++it) {
+        const size_t K = centres.size();
+        N.assign(K, 0.0);
+        R.assign(K, Dir{0, 0, 0});
+        bool changed = false;
+        obj = 0.0;
+        for (size_t i = 0; i < n; ++i) {
+            int best = 0;
+            double best_d = std::numeric_limits<double>::infinity();
+            for (size_t j = 0; j < K; ++j) {
+                const double dj = chord_half(d, i, centres[j]);
+                if (dj < best_d) {
+                    best_d = dj;
+                    best = int(j);
+                }
+            }
+            if (assign[i] != best) changed = true;
+            assign[i] = best;
+            obj += d.w[i] * best_d;
+            N[best] += d.w[i];
+            R[best].x += d.w[i] * d.x[i];
+            R[best].y += d.w[i] * d.y[i];
+            R[best].z += d.w[i] * d.z[i];
+        }
+        // Remove empty clusters (renumbering the assignments), move the centres.
+        std::vector<int> remap(K, -1);
+        std::vector<Dir> next;
+        std::vector<double> N2;
+        std::vector<Dir> R2;
+        for (size_t j = 0; j < K; ++j) {
+            if (!(N[j] > 0.0)) continue;
+            remap[j] = int(next.size());
+            const double len = std::sqrt(R[j].x * R[j].x + R[j].y * R[j].y + R[j].z * R[j].z);
+            next.push_back(len > 0.0 ? Dir{R[j].x / len, R[j].y / len, R[j].z / len} : centres[j]);
+            N2.push_back(N[j]);
+            R2.push_back(R[j]);
+        }
+        if (next.size() != K) {
+            for (int &a : assign) a = remap[size_t(a)];
+            changed = true;
+        }
+        N.swap(N2);
+        R.swap(R2);
+        // Lobes from the clusters of THESE assignments (centres = their resultants).
+        const bool last = !changed || it == 9;
+        centres.swap(next);
+        if (last) break;
+    }
+    std::vector<Lobe> lobes(centres.size());
+    for (size_t j = 0; j < lobes.size(); ++j) {
+        lobes[j].mu = centres[j];
+        lobes[j].order = int(j);
+    }
+    lobes_from_sums(lobes, N, R, opt);
+    *objective = obj;  // of the last assignment
+    return lobes;
+}
+
+/// One E-step: the mean log-likelihood of the lobes, and the responsibility sums N_j, R_j.
+double e_step(const Data &d, const std::vector<Lobe> &lobes, std::vector<double> &N, std::vector<Dir> &R) {
+    const size_t K = lobes.size(), n = d.size();
+    // log a_j + log_norm(κ_j) + κ_j: the log density at μ·x = 1. (log_norm(κ) + κ re-adds the
+    // −κ that log_norm subtracts; the rounding of that is ≤ ulp(κ) ≈ 1e-10 at κ = 1e6.)
+    std::vector<double> c0(K), kh(K), mx(K), my(K), mz(K), l(K);
+    for (size_t j = 0; j < K; ++j) {
+        c0[j] = std::log(lobes[j].weight) + vmf::log_norm(lobes[j].kappa) + lobes[j].kappa;
+        kh[j] = 0.5 * lobes[j].kappa;
+        mx[j] = lobes[j].mu.x;
+        my[j] = lobes[j].mu.y;
+        mz[j] = lobes[j].mu.z;
+    }
+    N.assign(K, 0.0);
+    R.assign(K, Dir{0, 0, 0});
+    double L = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+        const double x = d.x[i], y = d.y[i], z = d.z[i], w = d.w[i];
+        double lmax = -std::numeric_limits<double>::infinity();
+        for (size_t j = 0; j < K; ++j) {
+            const double dx = x - mx[j], dy = y - my[j], dz = z - mz[j];
+            l[j] = c0[j] - kh[j] * (dx * dx + dy * dy + dz * dz);  // κ(μ·x − 1) = −κ|μ − x|²/2
+            lmax = std::max(lmax, l[j]);
+        }
+        double s = 0.0;
+        for (size_t j = 0; j < K; ++j) s += (l[j] = std::exp(l[j] - lmax));
+        L += w * (lmax + std::log(s));
+        const double scale = w / s;
+        for (size_t j = 0; j < K; ++j) {
+            const double g = l[j] * scale;  // w_i γ_ij
+            N[j] += g;
+            R[j].x += g * x;
+            R[j].y += g * y;
+            R[j].z += g * z;
+        }
+    }
+    return L / d.total;
+}
+
+void check_options(const VmfEmOptions &opt) {
+    auto fail = [](const std::string &what) { throw MesoError("fit_vmf_mixture: " + what); };
+    if (opt.lobes < 1) fail("lobes must be >= 1, got " + std::to_string(opt.lobes));
+    if (opt.init_restarts < 1) fail("init_restarts must be >= 1, got " + std::to_string(opt.init_restarts));
+    if (opt.max_iterations < 0) fail("max_iterations must be >= 0, got " + std::to_string(opt.max_iterations));
+    if (!(opt.tolerance >= 0.0)) fail("tolerance must be >= 0");
+    if (!(opt.min_weight >= 0.0 && opt.min_weight < 1.0)) fail("min_weight must be in [0, 1)");
+    if (!(opt.max_kappa > 0.0) || std::isinf(opt.max_kappa)) fail("max_kappa must be positive and finite");
+}
+
+}  // namespace
+
+VmfMixture fit_vmf_mixture(const Vec3 *dirs, const double *weights, size_t n, const VmfEmOptions &opt) {
+    check_options(opt);
+    VmfMixture out;
+    if (n == 0 || !dirs) return out;
+    const Data d = prepare(dirs, weights, n);
+    if (d.size() == 0 || !(d.total > 0.0)) return out;  // empty mixture (header comment)
+
+    // k-means++ and Lloyd from init_restarts streams; the lowest k-means objective wins (ties:
+    // the first), a cheap guard against the local optima of a single greedy seeding.
+    std::vector<Lobe> lobes;
+    double best_obj = std::numeric_limits<double>::infinity();
+    for (int r = 0; r < opt.init_restarts; ++r) {
+        double obj = 0.0;
+        std::vector<Lobe> l = spherical_kmeans(d, kmeanspp(d, opt.lobes, mix_bits(opt.seed + uint64_t(r))), opt, &obj);
+        if (obj < best_obj || lobes.empty()) {
+            best_obj = obj;
+            lobes.swap(l);
+        }
+        if (!(obj > 0.0)) break;  // every direction is a centre: nothing to improve
+    }
+    drop_light_lobes(lobes, opt.min_weight);
+
+    std::vector<double> N;
+    std::vector<Dir> R;
+    double prev = -std::numeric_limits<double>::infinity();
+    bool dropped = false;
+    for (int it = 0;; ++it) {
+        const double L = e_step(d, lobes, N, R);
+        out.log_likelihood = L;
+        if (it > 0 && !dropped && std::abs(L - prev) <= opt.tolerance * (1.0 + std::abs(L))) {
+            out.converged = true;
+            break;
+        }
+        if (it == opt.max_iterations) break;
+        lobes_from_sums(lobes, N, R, opt);
+        dropped = drop_light_lobes(lobes, opt.min_weight);
+        prev = L;
+        ++out.iterations;
+    }
+
+    std::stable_sort(lobes.begin(), lobes.end(), [](const Lobe &a, const Lobe &b) {
+        return a.weight != b.weight ? a.weight > b.weight : a.order < b.order;
+    });
+    double total = 0.0;
+    for (const Lobe &l : lobes) total += l.weight;
+    for (const Lobe &l : lobes) {
+        VmfLobe v;
+        v.mu = Vec3(float(l.mu.x), float(l.mu.y), float(l.mu.z));
+        v.kappa = l.kappa;
+        v.weight = l.weight / total;
+        out.lobes.push_back(v);
+    }
+    return out;
+}
+
+double mixture_pdf(const VmfMixture &mixture, Vec3 w) {
+    double p = 0.0;
+    for (const VmfLobe &l : mixture.lobes) p += l.weight * vmf::pdf(l.mu, l.kappa, w);
+    return p;
+}
+
+}  // namespace meso

@@ -1,0 +1,224 @@
+#include "core/properties.h"
+#include <filesystem>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include "core/error.h"
+#include "core/registry.h"
+
+namespace meso {
+
+using json = nlohmann::json;
+
+const char *json_type_name(const json &j) {
+    switch (j.type()) {
+        case json::value_t::null: return "null";
+        case json::value_t::object: return "an object";
+        case json::value_t::array: return "an array";
+        case json::value_t::string: return "a string";
+        case json::value_t::boolean: return "a boolean";
+        case json::value_t::number_integer:
+        case json::value_t::number_unsigned: return "an integer";
+        case json::value_t::number_float: return "a number";
+        default: return "an unsupported value";
+    }
+}
+
+Properties::Properties(const json &obj, std::string path, std::shared_ptr<LoadContext> ctx)
+    : m_obj(&obj), m_path(std::move(path)), m_ctx(std::move(ctx)),
+      m_read(std::make_shared<std::set<std::string>>()) {
+    if (!m_ctx) m_ctx = std::make_shared<LoadContext>();
+    if (!obj.is_object()) throw_located(m_ctx->file, m_path, fmt::format("expected an object, got {}", json_type_name(obj)));
+}
+Properties::~Properties() = default;
+Properties::Properties(const Properties &) = default;
+
+std::string Properties::key_path(const std::string &key) const {
+    return m_path.empty() ? key : m_path + "." + key;
+}
+void Properties::fail(const std::string &key, const std::string &msg) const {
+    throw_located(m_ctx->file, key_path(key), msg);
+}
+void Properties::fail(const std::string &msg) const { throw_located(m_ctx->file, m_path, msg); }
+
+bool Properties::has(const std::string &key) const { return m_obj->contains(key); }
+
+const json &Properties::require(const std::string &key) const {
+    auto it = m_obj->find(key);
+    if (it == m_obj->end()) fail(key, "missing required parameter");
+    m_read->insert(key);
+    return *it;
+}
+const json &Properties::raw(const std::string &key) const { return require(key); }
+
+std::vector<std::string> Properties::keys() const {
+    std::vector<std::string> k;
+    for (auto it = m_obj->begin(); it != m_obj->end(); ++it) k.push_back(it.key());
+    return k;
+}
+
+std::string Properties::type() const {
+    const json &v = require("type");
+    if (!v.is_string()) fail("type", fmt::format("expected a string naming a plugin, got {}", json_type_name(v)));
+    return v.get<std::string>();
+}
+
+float Properties::get_float(const std::string &key) const {
+    const json &v = require(key);
+    if (!v.is_number()) fail(key, fmt::format("expected a number, got {}", json_type_name(v)));
+    double d = v.get<double>();
+    if (!std::isfinite(d)) fail(key, "expected a finite number");
+    return float(d);
+}
+float Properties::get_float(const std::string &key, float def) const { return has(key) ? get_float(key) : def; }
+
+int Properties::get_int(const std::string &key) const {
+    const json &v = require(key);
+    if (!v.is_number_integer() && !(v.is_number_float() && v.get<double>() == std::floor(v.get<double>())))
+        fail(key, fmt::format("expected an integer, got {}", json_type_name(v)));
+    double d = v.get<double>();
+    if (d < -2147483648.0 || d > 2147483647.0) fail(key, "integer out of range");
+    return int(d);
+}
+int Properties::get_int(const std::string &key, int def) const { return has(key) ? get_int(key) : def; }
+
+bool Properties::get_bool(const std::string &key, bool def) const {
+    if (!has(key)) return def;
+    const json &v = require(key);
+    if (!v.is_boolean()) fail(key, fmt::format("expected true or false, got {}", json_type_name(v)));
+    return v.get<bool>();
+}
+
+std::string Properties::get_string(const std::string &key) const {
+    const json &v = require(key);
+    if (!v.is_string()) fail(key, fmt::format("expected a string, got {}", json_type_name(v)));
+    return v.get<std::string>();
+}
+std::string Properties::get_string(const std::string &key, const std::string &def) const {
+    return has(key) ? get_string(key) : def;
+}
+
+std::vector<float> Properties::get_floats(const std::string &key) const {
+    const json &v = require(key);
+    if (!v.is_array()) fail(key, fmt::format("expected an array of numbers, got {}", json_type_name(v)));
+    std::vector<float> out;
+    for (size_t i = 0; i < v.size(); ++i) {
+        if (!v[i].is_number()) fail(key, fmt::format("element {}: expected a number, got {}", i, json_type_name(v[i])));
+        double d = v[i].get<double>();
+        if (!std::isfinite(d)) fail(key, fmt::format("element {}: expected a finite number", i));
+        out.push_back(float(d));
+    }
+    return out;
+}
+
+Vec3 Properties::get_vec3(const std::string &key) const {
+    const json &v = require(key);
+    if (!v.is_array() || v.size() != 3) fail(key, fmt::format("expected an array of 3 numbers, got {}", json_type_name(v)));
+    auto f = get_floats(key);
+    return {f[0], f[1], f[2]};
+}
+Vec3 Properties::get_vec3(const std::string &key, Vec3 def) const { return has(key) ? get_vec3(key) : def; }
+
+Spectrum Properties::get_spectrum(const std::string &key) const {
+    const json &v = require(key);
+    if (v.is_number()) {
+        float f = get_float(key);
+        return Spectrum(f);
+    }
+    if (!v.is_array() || v.size() != 3)
+        fail(key, fmt::format("expected a number or an [r, g, b] array, got {}", json_type_name(v)));
+    auto f = get_floats(key);
+    return {f[0], f[1], f[2]};
+}
+Spectrum Properties::get_spectrum(const std::string &key, Spectrum def) const {
+    return has(key) ? get_spectrum(key) : def;
+}
+
+std::string Properties::get_file(const std::string &key) const {
+    std::string name = get_string(key);
+    namespace fs = std::filesystem;
+    fs::path p(name);
+    if (p.is_relative() && !m_ctx->base_dir.empty()) p = fs::path(m_ctx->base_dir) / p;
+    std::error_code ec;
+    if (!fs::exists(p, ec)) fail(key, fmt::format("file not found: '{}'", p.string()));
+    if (fs::is_directory(p, ec)) fail(key, fmt::format("expected a file, got a directory: '{}'", p.string()));
+    return p.string();
+}
+
+Properties Properties::child(const std::string &key) const {
+    const json &v = require(key);
+    if (!v.is_object()) fail(key, fmt::format("expected an object, got {}", json_type_name(v)));
+    return Properties(v, key_path(key), m_ctx);
+}
+std::optional<Properties> Properties::optional_child(const std::string &key) const {
+    if (!has(key)) return std::nullopt;
+    return child(key);
+}
+std::vector<Properties> Properties::children(const std::string &key) const {
+    const json &v = require(key);
+    if (!v.is_array()) fail(key, fmt::format("expected an array of objects, got {}", json_type_name(v)));
+    std::vector<Properties> out;
+    for (size_t i = 0; i < v.size(); ++i) {
+        std::string p = fmt::format("{}[{}]", key_path(key), i);
+        if (!v[i].is_object()) throw_located(m_ctx->file, p, fmt::format("expected an object, got {}", json_type_name(v[i])));
+        out.emplace_back(v[i], p, m_ctx);
+    }
+    return out;
+}
+
+/// Builds (once) the named object `name` of the top-level section `decls` ("textures",
+/// "materials"), caching it in `cache`.
+template <typename T, typename Create>
+static std::shared_ptr<T> named_object(const Properties &from, const std::string &key, const std::string &name,
+                                       const char *section, const json *decls,
+                                       std::map<std::string, std::shared_ptr<T>> &cache, Create create) {
+    auto it = cache.find(name);
+    if (it != cache.end()) return it->second;
+    LoadContext &ctx = from.context();
+    if (!decls || !decls->is_object() || !decls->contains(name))
+        from.fail(key, fmt::format("no {} named '{}' (declare it in the top-level \"{}\" object)",
+                                   std::string(section).substr(0, std::string(section).size() - 1), name, section));
+    if (ctx.building.count(name)) from.fail(key, fmt::format("'{}' refers to itself", name));
+    ctx.building.insert(name);
+    Properties p((*decls)[name], std::string(section) + "." + name, from.context_ptr());
+    auto obj = create(p);
+    ctx.building.erase(name);
+    cache[name] = obj;
+    return obj;
+}
+
+std::shared_ptr<Texture> Properties::get_texture(const std::string &key, Spectrum def) const {
+    if (!has(key)) return make_constant_texture(def);
+    return get_texture(key);
+}
+
+std::shared_ptr<Texture> Properties::get_texture(const std::string &key) const {
+    const json &v = require(key);
+    if (v.is_number() || v.is_array()) {
+        Spectrum s = get_spectrum(key);
+        return make_constant_texture(s);
+    }
+    if (v.is_object()) return create_texture(child(key));
+    if (v.is_string())
+        return named_object<Texture>(*this, key, v.get<std::string>(), "textures", m_ctx->texture_decls,
+                                     m_ctx->textures, [](const Properties &p) { return create_texture(p); });
+    fail(key, fmt::format("expected a number, an [r, g, b] array, a texture object or a texture name, got {}",
+                          json_type_name(v)));
+}
+
+std::shared_ptr<Material> Properties::get_material(const std::string &key) const {
+    const json &v = require(key);
+    if (v.is_object()) return create_material(child(key));
+    if (v.is_string())
+        return named_object<Material>(*this, key, v.get<std::string>(), "materials", m_ctx->material_decls,
+                                      m_ctx->materials, [](const Properties &p) { return create_material(p); });
+    fail(key, fmt::format("expected a material object or a material name, got {}", json_type_name(v)));
+}
+
+void Properties::check_unused(const std::string &plugin_desc) const {
+    for (auto it = m_obj->begin(); it != m_obj->end(); ++it) {
+        if (!m_read->count(it.key()))
+            fail(it.key(), fmt::format("unknown parameter '{}' for {}", it.key(), plugin_desc));
+    }
+}
+
+}  // namespace meso

@@ -1,0 +1,76 @@
+// Level-of-detail chains (paper 004 §7.2): a sparse, ordered list of models of one surface,
+// each with its downsampling factor relative to the original (1 = the original map; e.g.
+// 1, 8, 64). Every LoD material and displaced shape reads its level from here.
+//
+// Footprint: the width of a pixel's footprint in texels of the ORIGINAL, full effective map
+// (tiling included): width = max(|(du/dx W, dv/dx H)|, |(du/dy W, dv/dy H)|) — the major
+// axis, as MipMap::level_for_footprint (conservative: no aliasing along either axis).
+// `lod_bias` scales the footprint before selection (> 1: coarser levels sooner).
+//
+// Selection is log-linear between neighbouring factors: a footprint of w texels sits at
+// position t = (log w - log f_i) / (log f_{i+1} - log f_i) between levels i and i+1, so a
+// footprint equal to a level's factor selects exactly that level; below the first factor
+// the first level is used alone, above the last the last.
+//
+// Blending: (a) trace the path on both levels and blend contributions with (1 - t, t);
+// (b) pick one level per path with probability t of the coarser one (same expectation,
+// about half the cost). A path must keep the level it picked for all its rays.
+#pragma once
+#include <string>
+#include <vector>
+
+namespace meso {
+
+struct LodSelection {
+    int lo = 0, hi = 0;  ///< neighbouring levels (equal at the ends of the chain)
+    float t = 0.f;       ///< weight of `hi`; `lo` gets 1 - t
+};
+
+/// Footprint width in texels of a W x H effective map from uv derivatives (see above).
+/// Non-finite or negative input gives 0 (the finest level).
+float footprint_texels(float dudx, float dudy, float dvdx, float dvdy, double width, double height);
+
+class LodChain {
+public:
+    LodChain() : m_factors{1.f} {}
+    /// Factors must be finite, >= 1 and strictly increasing; throws MesoError otherwise
+    /// (`where` prefixes the message).
+    explicit LodChain(std::vector<float> factors, const std::string &where = "");
+
+    int levels() const { return int(m_factors.size()); }
+    float factor(int level) const { return m_factors[size_t(level)]; }
+    const std::vector<float> &factors() const { return m_factors; }
+
+    /// Levels and weight for a footprint of `texels` original texels, scaled by `bias`.
+    LodSelection select(float texels, float bias = 1.f) const;
+    /// Stochastic choice: `lo` with probability 1 - t, `hi` with probability t (u in [0,1)).
+    int choose(float texels, float u, float bias = 1.f) const;
+    /// Continuous level position (i + t), for false-colour output.
+    float position(float texels, float bias = 1.f) const;
+
+private:
+    std::vector<float> m_factors;
+    std::vector<float> m_log;  ///< log of each factor
+};
+
+enum class LodBlend { Stochastic, Blend };
+
+/// The levels of one LoD shape (each level is its own Shape with `lod` pointing here and
+/// `lod_level` = its index): the chain, the bias, how levels are combined, and the texel
+/// grid of level 0 (the original map, tiling included) that footprints are measured in.
+/// The path tracer picks the level from the camera ray's first hit (one level per path,
+/// used by all its rays, as paper 004 picks one per pixel); paths whose camera ray does not
+/// hit an LoD shape see level 0.
+struct LodGroup {
+    LodChain chain;
+    float bias = 1.f;
+    LodBlend blend = LodBlend::Stochastic;
+    double texel_w = 1, texel_h = 1;
+};
+
+/// The levels a path sees when its camera ray hits a shape of `g` with uv derivatives
+/// (dudx, dudy, dvdx, dvdy) (paper 004 §7.2: one level per path, from the first hit's
+/// footprint in texels of the original map, scaled by the group's bias).
+LodSelection select_path_level(const LodGroup &g, float dudx, float dudy, float dvdx, float dvdy);
+
+}  // namespace meso
