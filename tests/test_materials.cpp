@@ -794,7 +794,7 @@ TEST(MaterialParameters, LocatedErrors) {
     EXPECT_EQ(error_of(R"({"type":"conductor","alpha_u":0.1})"), "material.alpha_u: \"alpha_u\" needs \"alpha_v\" as well");
     EXPECT_EQ(error_of(R"({"type":"conductor","alpha":-1})"), "material.alpha: roughness must be >= 0, got -1");
     EXPECT_EQ(error_of(R"({"type":"conductor","distribution":"phong"})"),
-              "material.distribution: unknown microfacet distribution 'phong' (expected \"ggx\" or \"beckmann\")");
+              "material.distribution: expected \"ggx\" or \"beckmann\", got \"phong\"");
     EXPECT_EQ(error_of(R"({"type":"dielectric","eta":1.5,"int_ior":1.3})"),
               "material.int_ior: give either \"eta\" or \"int_ior\"/\"ext_ior\", not both");
     EXPECT_EQ(error_of(R"({"type":"dielectric","int_ior":"unobtainium"})").substr(0, 61),

@@ -245,11 +245,8 @@ std::string MicrofacetDistribution::to_string() const {
 
 std::optional<MicrofacetDistribution> microfacet_from_properties(const Properties &p, bool allow_anisotropic,
                                                                  float default_alpha) {
-    std::string dist = p.get_string("distribution", "ggx");
-    MicrofacetType type;
-    if (dist == "ggx") type = MicrofacetType::GGX;
-    else if (dist == "beckmann") type = MicrofacetType::Beckmann;
-    else p.fail("distribution", fmt::format("unknown microfacet distribution '{}' (expected \"ggx\" or \"beckmann\")", dist));
+    const MicrofacetType type =
+        p.get_enum<MicrofacetType>("distribution", "ggx", {{"ggx", MicrofacetType::GGX}, {"beckmann", MicrofacetType::Beckmann}});
     bool visible = p.get_bool("sample_visible", true);
     float au = default_alpha, av = default_alpha;
     bool has_u = p.has("alpha_u"), has_v = p.has("alpha_v");

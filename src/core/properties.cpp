@@ -221,4 +221,26 @@ void Properties::check_unused(const std::string &plugin_desc) const {
     }
 }
 
+std::string quoted_choices(const std::vector<std::string> &names) {
+    std::string out;
+    for (size_t i = 0; i < names.size(); ++i) {
+        if (i > 0) out += i + 1 == names.size() ? " or " : ", ";
+        out += "\"" + names[i] + "\"";
+    }
+    return out;
+}
+
+int parse_choice(const std::string &what, const std::string &value, const std::vector<std::string> &names) {
+    for (size_t i = 0; i < names.size(); ++i)
+        if (names[i] == value) return int(i);
+    throw MesoError(fmt::format("{}: expected {}, got \"{}\"", what, quoted_choices(names), value));
+}
+
+int Properties::choice_index(const std::string &key, const std::string *def, const std::vector<std::string> &names) const {
+    const std::string v = def ? get_string(key, *def) : get_string(key);
+    for (size_t i = 0; i < names.size(); ++i)
+        if (names[i] == v) return int(i);
+    fail(key, fmt::format("expected {}, got \"{}\"", quoted_choices(names), v));
+}
+
 }  // namespace meso

@@ -7,6 +7,7 @@
 // an [r,g,b] array, an inline object {"type": ...} or a string naming a texture declared
 // in the scene's top-level "textures" object.
 #pragma once
+#include <initializer_list>
 #include <map>
 #include <memory>
 #include <optional>
@@ -39,6 +40,12 @@ struct LoadContext {
 /// "an object", "a string", "an integer", ... for messages about what was found.
 const char *json_type_name(const nlohmann::json &j);
 
+/// The one wording of every "which of these names" error: `"a", "b" or "c"`.
+std::string quoted_choices(const std::vector<std::string> &names);
+/// Index of `value` in `names`; otherwise throws MesoError "`what`: expected "a", "b" or "c",
+/// got "value"" (command-line options and other non-scene choices).
+int parse_choice(const std::string &what, const std::string &value, const std::vector<std::string> &names);
+
 class Properties {
 public:
     /// `path` is the JSON path of `obj` ("materials.gold", "shapes[2].material").
@@ -66,6 +73,29 @@ public:
     Spectrum get_spectrum(const std::string &key) const;
     Spectrum get_spectrum(const std::string &key, Spectrum def) const;
     std::vector<float> get_floats(const std::string &key) const;
+    /// Enumerated string parameter: the value of `key` (`def` when absent; no default: required)
+    /// must be one of the names in `choices`, and gives the value paired with it. The error
+    /// names the file, the JSON path and every allowed name:
+    ///   p.get_enum<Dist>("distribution", "ggx", {{"ggx", Dist::GGX}, {"beckmann", Dist::Beckmann}})
+    template <typename T>
+    T get_enum(const std::string &key, const std::string &def,
+               std::initializer_list<std::pair<const char *, T>> choices) const {
+        std::vector<std::string> names;
+        for (const auto &c : choices) names.push_back(c.first);
+        return (choices.begin() + choice_index(key, &def, names))->second;
+    }
+    template <typename T>
+    T get_enum(const std::string &key, std::initializer_list<std::pair<const char *, T>> choices) const {
+        std::vector<std::string> names;
+        for (const auto &c : choices) names.push_back(c.first);
+        return (choices.begin() + choice_index(key, nullptr, names))->second;
+    }
+    /// A string parameter restricted to `names` (get_enum without values).
+    std::string get_choice(const std::string &key, const std::string &def, const std::vector<std::string> &names) const {
+        return names[size_t(choice_index(key, &def, names))];
+    }
+    /// Index of the string value of `key` (or *def when absent and def is given) in `names`.
+    int choice_index(const std::string &key, const std::string *def, const std::vector<std::string> &names) const;
     /// A path relative to the scene file, resolved; errors if the file does not exist.
     std::string get_file(const std::string &key) const;
 
