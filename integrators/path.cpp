@@ -60,6 +60,19 @@ private:
     /// LoD shape (stochastically, or by tracing both neighbouring levels and blending);
     /// >= 0: every ray of the path sees that level (geometry/lod.h).
     Spectrum trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats, int level) const;
+    struct PathState;
+    /// Environment radiance along an escaped ray, MIS-weighted against light sampling.
+    void add_escaped(const Scene &scene, const RayDifferential &ray, PathState &st) const;
+    /// Emission of an area light hit by the ray, MIS-weighted against light sampling.
+    void add_emitted(const Scene &scene, const RayDifferential &ray, const SurfaceInteraction &si, PathState &st) const;
+    /// Shades the hit (environment quadrature, next-event estimation) and samples the BSDF for
+    /// the next segment into `ray`; false ends the path.
+    bool scatter(const Scene &scene, RayDifferential &ray, SurfaceInteraction &si, const Material &mat,
+                 Sampler &sampler, RenderStats &stats, PathState &st) const;
+    /// Next-event estimation: one light sample and its shadow ray, power-heuristic MIS.
+    void add_light_sample(const Scene &scene, const RayDifferential &ray, const SurfaceInteraction &si,
+                          const ShadingContext &ctx, const Vec3 &wo, const Material &mat, bool env_by_quadrature,
+                          Sampler &sampler, RenderStats &stats, PathState &st) const;
     int m_max_depth, m_rr_depth;
     bool m_hide_emitters;
     bool m_differentials;  ///< ray-differential footprints at every hit
@@ -79,16 +92,21 @@ Spectrum PathIntegrator::li(const Scene &scene, RayDifferential ray, Sampler &sa
     return trace(scene, ray, sampler, stats, -1);
 }
 
-Spectrum PathIntegrator::trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats,
-                           int level) const {
-    if (level >= 0) ray.mask = lod_ray_mask(level);
-    Spectrum L(0.f), beta(1.f);
-    bool specular_bounce = true;  // camera rays count as specular: no MIS for emitters seen directly
-    float prev_pdf = 0.f;
-    LightSampleContext prev_ctx;
-    float eta_scale = 1.f;
-    bool env_by_quadrature = false;  // the previous vertex took the environment from its quadrature
+/// The state a path carries from one vertex to the next.
+struct PathIntegrator::PathState {
+    Spectrum L{0.f};                ///< radiance gathered so far
+    Spectrum beta{1.f};             ///< throughput
+    bool specular_bounce = true;    ///< the last scattering was delta (camera rays count as such: no MIS)
+    float prev_pdf = 0.f;           ///< solid-angle pdf of the BSDF sample that made the current ray
+    LightSampleContext prev_ctx;    ///< where that sample was taken (for the light pdf of MIS)
+    float eta_scale = 1.f;          ///< product of eta^2 over refractions (removed from roulette)
+    bool env_by_quadrature = false; ///< the previous vertex took the environment from its quadrature
+};
 
+Spectrum PathIntegrator::trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats,
+                               int level) const {
+    if (level >= 0) ray.mask = lod_ray_mask(level);
+    PathState st;
     for (int depth = 0;; ++depth) {
         SurfaceInteraction si;
         ++stats.rays;
@@ -96,10 +114,9 @@ Spectrum PathIntegrator::trace(const Scene &scene, RayDifferential ray, Sampler 
         if (depth == 0 && level < 0 && hit && si.shape->lod) {
             // LoD: the footprint of the camera ray on the original surface picks the level
             // (paper 004 §7.2); the whole path then sees only that level.
-            const LodGroup &g = *si.shape->lod;
             si.compute_differentials(ray, scene.camera.get());
-            const LodSelection sel = select_path_level(g, si.dudx, si.dudy, si.dvdx, si.dvdy);
-            if (sel.hi != sel.lo && g.blend == LodBlend::Blend)
+            const LodSelection sel = select_path_level(*si.shape->lod, si.dudx, si.dudy, si.dvdx, si.dvdy);
+            if (sel.hi != sel.lo && si.shape->lod->blend == LodBlend::Blend)
                 return trace(scene, ray, sampler, stats, sel.lo) * (1.f - sel.t) +
                        trace(scene, ray, sampler, stats, sel.hi) * sel.t;
             int chosen = sel.lo;
@@ -112,120 +129,134 @@ Spectrum PathIntegrator::trace(const Scene &scene, RayDifferential ray, Sampler 
             }
         }
         const bool count_emission = !(depth == 0 && m_hide_emitters);
-
         if (!hit) {
-            if (count_emission && !env_by_quadrature)
-                for (const Light *env : scene.infinite_lights) {
-                    Spectrum Le = env->eval(LightHit{}, -ray.d);
-                    if (Le.is_black()) continue;
-                    float w = 1.f;
-                    if (!specular_bounce) {
-                        float lp = scene.light_pmf(env) * env->pdf(prev_ctx, ray.d, LightHit{});
-                        w = power_heuristic(prev_pdf, lp);
-                    }
-                    L += beta * Le * w;
-                }
+            if (count_emission && !st.env_by_quadrature) add_escaped(scene, ray, st);
             break;
         }
-
-        if (si.shape->emitter && count_emission) {
-            LightHit lh{si.p, si.ng, si.prim};
-            Spectrum Le = si.shape->emitter->eval(lh, si.wo);
-            if (!Le.is_black()) {
-                float w = 1.f;
-                if (!specular_bounce) {
-                    float lp = scene.light_pmf(si.shape->emitter.get()) * si.shape->emitter->pdf(prev_ctx, ray.d, lh);
-                    w = power_heuristic(prev_pdf, lp);
-                }
-                L += beta * Le * w;
-            }
-        }
-
+        if (si.shape->emitter && count_emission) add_emitted(scene, ray, si, st);
         if (m_max_depth >= 0 && depth + 1 >= m_max_depth) break;
         const Material *mat = si.shape->material.get();
         if (!mat) break;
-        const bool two_sided = !mat->has_transmission();
-        // Footprint at every bounce (exact transport after delta lobes, the camera-based
-        // approximation after rough ones: render/differentials.h).
-        if (m_differentials) si.compute_differentials(ray, scene.camera.get());
-        ShadingContext ctx = si.shading_context(two_sided);
-        const Vec3 wo = ctx.frame.to_local(si.wo);
-        if (wo.z == 0.f && two_sided) break;
-
-        // The whole unoccluded environment by the material's quadrature (leadr_env_quadrature).
-        const bool quad = !m_envs.empty() && mat->has_env_quadrature();
-        if (quad)
-            for (const auto &env : m_envs) L += beta * mat->env_radiance(ctx, wo, *env);
-        env_by_quadrature = quad;
-
-        // A uniform for materials with a stochastic evaluation (ShadingContext::u_eval), drawn at
-        // every vertex so that the sample dimensions stay aligned across materials. Such a
-        // material returns from eval_pdf and sample per-strategy pdfs; the MIS below pairs them
-        // (bsdf_pdf from eval_pdf here, prev_pdf = bs.pdf from sample at the emitter hit).
-        ctx.u_eval = sampler.get_1d();
-
-        // Next-event estimation: one light sample, MIS-weighted against BSDF sampling.
-        if (mat->flags() & BSDF_Smooth) {
-            float pmf;
-            float ul = sampler.get_1d();
-            Vec2 u2 = sampler.get_2d();
-            const Light *light = scene.sample_light(ul, pmf);
-            LightSample ls;
-            const bool by_quadrature = quad && light && light->is_infinite();  // already counted above
-            if (light && pmf > 0.f && !by_quadrature && light->sample(LightSampleContext{si.p, ctx.ng}, u2, ls) &&
-                ls.pdf > 0.f && !ls.L.is_black()) {
-                Vec3 wi = ctx.frame.to_local(ls.wi);
-                // Reflection-only surfaces cannot be lit from behind their geometric side.
-                bool ok = two_sided ? dot(ls.wi, ctx.ng) > 0.f : true;
-                float bsdf_pdf = 0.f;
-                Spectrum f = ok ? mat->eval_pdf(ctx, wo, wi, ls.delta ? nullptr : &bsdf_pdf) : Spectrum(0.f);
-                if (!f.is_black()) {
-                    Ray shadow = std::isinf(ls.dist) ? si.spawn_ray(ls.wi) : si.spawn_ray_to(si.p + ls.wi * ls.dist);
-                    shadow.mask = ray.mask;  // the path's LoD level
-                    ++stats.rays;
-                    ++stats.shadow_rays;
-                    if (!scene.occluded(shadow)) {
-                        float light_pdf = pmf * ls.pdf;
-                        float w = ls.delta ? 1.f : power_heuristic(light_pdf, bsdf_pdf);
-                        L += beta * f * ls.L * (w / light_pdf);
-                    }
-                }
-            }
-        } else {
-            sampler.get_1d();  // keep dimensions aligned across materials
-            sampler.get_2d();
-        }
-
-        // BSDF sampling for the next segment.
-        BSDFSample bs;
-        float ulobe = sampler.get_1d();
-        Vec2 u = sampler.get_2d();
-        if (!mat->sample(ctx, wo, ulobe, u, bs) || bs.weight.is_black() || !(bs.pdf > 0.f)) break;
-        Vec3 wi = ctx.frame.to_world(bs.wi);
-        // Reject directions on the wrong side of the geometric surface for reflection.
-        if ((bs.flags & BSDF_Reflection) && two_sided && dot(wi, ctx.ng) <= 0.f) break;
-        beta *= bs.weight;
-        if (!beta.is_finite()) break;
-        specular_bounce = (bs.flags & BSDF_Delta) != 0;
-        prev_pdf = bs.pdf;
-        prev_ctx = LightSampleContext{si.p, ctx.ng};
-        if (bs.flags & BSDF_Transmission) eta_scale *= sqr(bs.eta);
-
-        RayDifferential next(si.spawn_ray(wi));
-        next.footprint_scale = ray.footprint_scale;
-        next.mask = ray.mask;
-        if (m_differentials && (bs.flags & BSDF_Delta))
-            specular_differentials(ray, si, ctx.frame.n, wi, bs.flags, bs.eta, next);
-        ray = next;
+        if (!scatter(scene, ray, si, *mat, sampler, stats, st)) break;
 
         // Russian roulette on the throughput (with the eta^2 factor removed, pbrt-v4).
         if (m_rr_depth >= 0 && depth + 1 >= m_rr_depth) {
-            float q = std::min(0.95f, beta.max() * eta_scale);
+            float q = std::min(0.95f, st.beta.max() * st.eta_scale);
             if (!(sampler.get_1d() < q)) break;
-            beta = beta / q;
+            st.beta = st.beta / q;
         }
     }
-    return L;
+    return st.L;
+}
+
+void PathIntegrator::add_escaped(const Scene &scene, const RayDifferential &ray, PathState &st) const {
+    for (const Light *env : scene.infinite_lights) {
+        Spectrum Le = env->eval(LightHit{}, -ray.d);
+        if (Le.is_black()) continue;
+        float w = 1.f;
+        if (!st.specular_bounce) {
+            float lp = scene.light_pmf(env) * env->pdf(st.prev_ctx, ray.d, LightHit{});
+            w = power_heuristic(st.prev_pdf, lp);
+        }
+        st.L += st.beta * Le * w;
+    }
+}
+
+void PathIntegrator::add_emitted(const Scene &scene, const RayDifferential &ray, const SurfaceInteraction &si,
+                                 PathState &st) const {
+    LightHit lh{si.p, si.ng, si.prim};
+    Spectrum Le = si.shape->emitter->eval(lh, si.wo);
+    if (Le.is_black()) return;
+    float w = 1.f;
+    if (!st.specular_bounce) {
+        float lp = scene.light_pmf(si.shape->emitter.get()) * si.shape->emitter->pdf(st.prev_ctx, ray.d, lh);
+        w = power_heuristic(st.prev_pdf, lp);
+    }
+    st.L += st.beta * Le * w;
+}
+
+bool PathIntegrator::scatter(const Scene &scene, RayDifferential &ray, SurfaceInteraction &si, const Material &mat,
+                             Sampler &sampler, RenderStats &stats, PathState &st) const {
+    const bool two_sided = !mat.has_transmission();
+    // Footprint at every bounce (exact transport after delta lobes, the camera-based
+    // approximation after rough ones: render/differentials.h).
+    if (m_differentials) si.compute_differentials(ray, scene.camera.get());
+    ShadingContext ctx = si.shading_context(two_sided);
+    const Vec3 wo = ctx.frame.to_local(si.wo);
+    if (wo.z == 0.f && two_sided) return false;
+
+    // The whole unoccluded environment by the material's quadrature (leadr_env_quadrature).
+    const bool quad = !m_envs.empty() && mat.has_env_quadrature();
+    if (quad)
+        for (const auto &env : m_envs) st.L += st.beta * mat.env_radiance(ctx, wo, *env);
+    st.env_by_quadrature = quad;
+
+    // A uniform for materials with a stochastic evaluation (ShadingContext::u_eval), drawn at
+    // every vertex so that the sample dimensions stay aligned across materials. Such a
+    // material returns from eval_pdf and sample per-strategy pdfs; the MIS below pairs them
+    // (bsdf_pdf from eval_pdf here, prev_pdf = bs.pdf from sample at the emitter hit).
+    ctx.u_eval = sampler.get_1d();
+
+    if (mat.flags() & BSDF_Smooth) {
+        add_light_sample(scene, ray, si, ctx, wo, mat, quad, sampler, stats, st);
+    } else {
+        sampler.get_1d();  // keep dimensions aligned across materials
+        sampler.get_2d();
+    }
+
+    // BSDF sampling for the next segment.
+    BSDFSample bs;
+    float ulobe = sampler.get_1d();
+    Vec2 u = sampler.get_2d();
+    if (!mat.sample(ctx, wo, ulobe, u, bs) || bs.weight.is_black() || !(bs.pdf > 0.f)) return false;
+    Vec3 wi = ctx.frame.to_world(bs.wi);
+    // Reject directions on the wrong side of the geometric surface for reflection.
+    if ((bs.flags & BSDF_Reflection) && two_sided && dot(wi, ctx.ng) <= 0.f) return false;
+    st.beta *= bs.weight;
+    if (!st.beta.is_finite()) return false;
+    st.specular_bounce = (bs.flags & BSDF_Delta) != 0;
+    st.prev_pdf = bs.pdf;
+    st.prev_ctx = LightSampleContext{si.p, ctx.ng};
+    if (bs.flags & BSDF_Transmission) st.eta_scale *= sqr(bs.eta);
+
+    RayDifferential next(si.spawn_ray(wi));
+    next.footprint_scale = ray.footprint_scale;
+    next.mask = ray.mask;
+    if (m_differentials && (bs.flags & BSDF_Delta))
+        specular_differentials(ray, si, ctx.frame.n, wi, bs.flags, bs.eta, next);
+    ray = next;
+    return true;
+}
+
+void PathIntegrator::add_light_sample(const Scene &scene, const RayDifferential &ray, const SurfaceInteraction &si,
+                                      const ShadingContext &ctx, const Vec3 &wo, const Material &mat,
+                                      bool env_by_quadrature, Sampler &sampler, RenderStats &stats,
+                                      PathState &st) const {
+    // Next-event estimation: one light sample, MIS-weighted against BSDF sampling.
+    const bool two_sided = !mat.has_transmission();
+    float pmf;
+    float ul = sampler.get_1d();
+    Vec2 u2 = sampler.get_2d();
+    const Light *light = scene.sample_light(ul, pmf);
+    LightSample ls;
+    const bool by_quadrature = env_by_quadrature && light && light->is_infinite();  // already counted
+    if (!light || !(pmf > 0.f) || by_quadrature || !light->sample(LightSampleContext{si.p, ctx.ng}, u2, ls) ||
+        !(ls.pdf > 0.f) || ls.L.is_black())
+        return;
+    Vec3 wi = ctx.frame.to_local(ls.wi);
+    // Reflection-only surfaces cannot be lit from behind their geometric side.
+    bool ok = two_sided ? dot(ls.wi, ctx.ng) > 0.f : true;
+    float bsdf_pdf = 0.f;
+    Spectrum f = ok ? mat.eval_pdf(ctx, wo, wi, ls.delta ? nullptr : &bsdf_pdf) : Spectrum(0.f);
+    if (f.is_black()) return;
+    Ray shadow = std::isinf(ls.dist) ? si.spawn_ray(ls.wi) : si.spawn_ray_to(si.p + ls.wi * ls.dist);
+    shadow.mask = ray.mask;  // the path's LoD level
+    ++stats.rays;
+    ++stats.shadow_rays;
+    if (scene.occluded(shadow)) return;
+    float light_pdf = pmf * ls.pdf;
+    float w = ls.delta ? 1.f : power_heuristic(light_pdf, bsdf_pdf);
+    st.L += st.beta * f * ls.L * (w / light_pdf);
 }
 
 std::string PathIntegrator::to_string() const {
