@@ -203,7 +203,7 @@ TEST(GenMap, WrapAroundIsSeamless) {
         EXPECT_GT(s.interior_msd, 0) << kind;
         EXPECT_LE(s.seam_max, 1.25 * s.interior_max) << kind;  // sampling phase differs at the seam
         bool random = std::find(kSeeded.begin(), kSeeded.end(), kind) != kSeeded.end();
-        if (random) EXPECT_LT(s.seam_msd, 3 * s.interior_msd) << kind;
+        if (random) { EXPECT_LT(s.seam_msd, 3 * s.interior_msd) << kind; }
     };
     for (const std::string &kind : kSeamless) check(kind, {{"size", "96"}, {"seed", "3"}});
     for (const std::string &kind : kSeeded) check(kind, {{"width", "90"}, {"height", "61"}, {"seed", "3"}});

@@ -54,13 +54,86 @@ void check_crop(const std::array<int, 4> &c, int width, int height) {
                                     c[0], c[1], c[2], c[3], width, height, width, height));
 }
 
+namespace {
+
+/// The pixels rendered: [x0, x0 + w) x [y0, y0 + h) of the full image (the whole image without
+/// --crop). Pixel coordinates stay those of the full image, so every sample is seeded as in a
+/// full render.
+struct Window {
+    int x0, y0, w, h;
+};
+
+/// One pass: sample indices [first, first + n) of every pixel of the window, tiles in parallel.
+void render_pass(const Scene &scene, const RenderOptions &opts, const Window &win, int first, int n, float diff_scale,
+                 Film &film, tbb::enumerable_thread_specific<RenderStats> &stats) {
+    const int tiles_x = (win.w + TileSize - 1) / TileSize, tiles_y = (win.h + TileSize - 1) / TileSize;
+    tbb::parallel_for(tbb::blocked_range2d<int>(0, tiles_y, 1, 0, tiles_x, 1), [&](const tbb::blocked_range2d<int> &r) {
+        std::unique_ptr<Sampler> sampler = scene.sampler->clone();
+        if (opts.seed) sampler->set_seed(*opts.seed);
+        RenderStats &st = stats.local();
+        for (int ty = r.rows().begin(); ty < r.rows().end(); ++ty)
+            for (int tx = r.cols().begin(); tx < r.cols().end(); ++tx) {
+                // Tiles are laid over the window; x, y are full-image pixel coordinates.
+                const int x1 = win.x0 + std::min(win.w, (tx + 1) * TileSize);
+                const int y1 = win.y0 + std::min(win.h, (ty + 1) * TileSize);
+                for (int y = win.y0 + ty * TileSize; y < y1; ++y)
+                    for (int x = win.x0 + tx * TileSize; x < x1; ++x) {
+                        double *px = &film.sum[(size_t(y - win.y0) * win.w + (x - win.x0)) * 3];
+                        for (int s = first; s < first + n; ++s) {
+                            sampler->start_pixel_sample(x, y, uint32_t(s));
+                            CameraSample cs;
+                            Vec2 j = sampler->get_2d();
+                            cs.film = Vec2(x + j.x, y + j.y);
+                            cs.lens = sampler->get_2d();
+                            RayDifferential ray;
+                            float w = scene.camera->generate_ray(cs, ray);
+                            ray.scale_differentials(diff_scale);
+                            Spectrum L = scene.integrator->li(scene, ray, *sampler, st) * w;
+                            if (!L.is_finite()) {
+                                film.nan_count.fetch_add(1, std::memory_order_relaxed);
+                                continue;
+                            }
+                            px[0] += L.r;
+                            px[1] += L.g;
+                            px[2] += L.b;
+                        }
+                    }
+            }
+    });
+}
+
+/// The --convergence log (pass, elapsed, spp, MSE, relMSE after every pass), or null.
+std::unique_ptr<std::ofstream> open_convergence_log(const RenderOptions &opts, int ranks) {
+    if (opts.convergence_csv.empty()) return nullptr;
+    if (!opts.reference) throw MesoError("--convergence needs --reference");
+    if (ranks > 1) throw MesoError("--convergence is not supported with several MPI ranks (it needs the whole film after every pass)");
+    auto csv = std::make_unique<std::ofstream>(opts.convergence_csv);
+    if (!*csv) throw MesoError(fmt::format("cannot write '{}'", opts.convergence_csv));
+    *csv << "pass,elapsed_s,spp,mse,relmse\n";
+    return csv;
+}
+
+/// The ranks' films and counters summed on rank 0 (the other ranks keep their partial film);
+/// returns the slowest rank's wall time.
+double reduce_ranks(Film &film, tbb::enumerable_thread_specific<RenderStats> &stats, double wall) {
+    dist::reduce_sum_to_root(film.sum.data(), film.sum.size());
+    uint64_t counts[3] = {uint64_t(film.nan_count.load()), 0, 0};
+    for (auto &s : stats) counts[1] += s.rays, counts[2] += s.shadow_rays;
+    dist::reduce_sum_to_root(counts, 3);
+    film.nan_count.store(long(counts[0]));
+    stats.clear();
+    stats.local().rays = counts[1];
+    stats.local().shadow_rays = counts[2];
+    return dist::allreduce_max(wall);
+}
+
+}  // namespace
+
 RenderResult render(const Scene &scene, const RenderOptions &opts) {
     if (!scene.camera || !scene.integrator || !scene.sampler) throw MesoError("scene is incomplete (camera, integrator or sampler missing)");
-    // The window [X0, X1) x [Y0, Y1) (the whole image without a crop); W x H is its size. Pixel
-    // coordinates stay those of the full image, so every sample is seeded as in a full render.
-    const std::array<int, 4> win = opts.crop.value_or(std::array<int, 4>{0, 0, scene.camera->width(), scene.camera->height()});
-    check_crop(win, scene.camera->width(), scene.camera->height());
-    const int X0 = win[0], Y0 = win[1], W = win[2] - win[0], H = win[3] - win[1];
+    const std::array<int, 4> crop = opts.crop.value_or(std::array<int, 4>{0, 0, scene.camera->width(), scene.camera->height()});
+    check_crop(crop, scene.camera->width(), scene.camera->height());
+    const Window win{crop[0], crop[1], crop[2] - crop[0], crop[3] - crop[1]};
     const int total_spp = opts.spp > 0 ? opts.spp : scene.spp;
     const bool timed = opts.time_budget_s > 0;
     // Ranks (MPI, docs/cluster.md): rank r renders, in every pass, its own block of n consecutive
@@ -76,20 +149,13 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     // Under a time budget, passes are smaller (>= 8k samples, 1 spp from 90x90 pixels up) so
     // that the budget is used to within a few per cent even for small images and short
     // budgets (equal-time comparisons, `meso bench`).
-    const int spp_per_pass = std::max(1, int(std::ceil((timed ? 8192.0 : 65536.0) / (double(W) * H))));
+    const int spp_per_pass = std::max(1, int(std::ceil((timed ? 8192.0 : 65536.0) / (double(win.w) * win.h))));
     // pbrt-v4: scale camera differentials by max(1/8, 1/sqrt(spp)) (footprint of one sample).
     const float diff_scale = std::max(0.125f, 1.f / std::sqrt(float(timed ? std::max(total_spp, 1) : total_spp)));
 
-    Film film(W, H);
+    Film film(win.w, win.h);
     tbb::enumerable_thread_specific<RenderStats> stats;
-    std::unique_ptr<std::ofstream> csv;
-    if (!opts.convergence_csv.empty()) {
-        if (!opts.reference) throw MesoError("--convergence needs --reference");
-        if (ranks > 1) throw MesoError("--convergence is not supported with several MPI ranks (it needs the whole film after every pass)");
-        csv = std::make_unique<std::ofstream>(opts.convergence_csv);
-        if (!*csv) throw MesoError(fmt::format("cannot write '{}'", opts.convergence_csv));
-        *csv << "pass,elapsed_s,spp,mse,relmse\n";
-    }
+    std::unique_ptr<std::ofstream> csv = open_convergence_log(opts, ranks);
 
     scene.integrator->preprocess(scene);
     Progress progress(opts.progress && rank == 0, timed ? opts.time_budget_s : double(total_spp), timed ? "s" : "spp");
@@ -99,7 +165,6 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
 
     int spp_done = 0, passes = 0;
     double last_pass_s = 0.0, pass_start = 0.0;
-    const int tiles_x = (W + TileSize - 1) / TileSize, tiles_y = (H + TileSize - 1) / TileSize;
     for (;;) {
         // spp_done: samples per pixel of all ranks so far; this rank's block of the pass.
         const int block = spp_per_pass;
@@ -113,38 +178,7 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
             if (dist::broadcast(elapsed() + last_pass_s > opts.time_budget_s)) break;
         }
         pass_start = elapsed();
-        tbb::parallel_for(tbb::blocked_range2d<int>(0, tiles_y, 1, 0, tiles_x, 1), [&](const tbb::blocked_range2d<int> &r) {
-            std::unique_ptr<Sampler> sampler = scene.sampler->clone();
-            if (opts.seed) sampler->set_seed(*opts.seed);
-            RenderStats &st = stats.local();
-            for (int ty = r.rows().begin(); ty < r.rows().end(); ++ty)
-                for (int tx = r.cols().begin(); tx < r.cols().end(); ++tx) {
-                    // Tiles are laid over the window; x, y are full-image pixel coordinates.
-                    const int x1 = X0 + std::min(W, (tx + 1) * TileSize), y1 = Y0 + std::min(H, (ty + 1) * TileSize);
-                    for (int y = Y0 + ty * TileSize; y < y1; ++y)
-                        for (int x = X0 + tx * TileSize; x < x1; ++x) {
-                            double *px = &film.sum[(size_t(y - Y0) * W + (x - X0)) * 3];
-                            for (int s = first; s < first + n; ++s) {
-                                sampler->start_pixel_sample(x, y, uint32_t(s));
-                                CameraSample cs;
-                                Vec2 j = sampler->get_2d();
-                                cs.film = Vec2(x + j.x, y + j.y);
-                                cs.lens = sampler->get_2d();
-                                RayDifferential ray;
-                                float w = scene.camera->generate_ray(cs, ray);
-                                ray.scale_differentials(diff_scale);
-                                Spectrum L = scene.integrator->li(scene, ray, *sampler, st) * w;
-                                if (!L.is_finite()) {
-                                    film.nan_count.fetch_add(1, std::memory_order_relaxed);
-                                    continue;
-                                }
-                                px[0] += L.r;
-                                px[1] += L.g;
-                                px[2] += L.b;
-                            }
-                        }
-                }
-        });
+        render_pass(scene, opts, win, first, n, diff_scale, film, stats);
         spp_done += timed ? ranks * block : std::min(ranks * block, total_spp - spp_done);
         ++passes;
         double t = elapsed();
@@ -158,19 +192,8 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     }
     progress.finish(elapsed());
 
-    // The ranks' films and counters summed on rank 0 (the other ranks keep their partial film).
     double wall = elapsed();
-    if (ranks > 1) {
-        dist::reduce_sum_to_root(film.sum.data(), film.sum.size());
-        uint64_t counts[3] = {uint64_t(film.nan_count.load()), 0, 0};
-        for (auto &s : stats) counts[1] += s.rays, counts[2] += s.shadow_rays;
-        dist::reduce_sum_to_root(counts, 3);
-        film.nan_count.store(long(counts[0]));
-        stats.clear();
-        stats.local().rays = counts[1];
-        stats.local().shadow_rays = counts[2];
-        wall = dist::allreduce_max(wall);
-    }
+    if (ranks > 1) wall = reduce_ranks(film, stats, wall);
     RenderResult res;
     res.ranks = ranks;
     res.wall_s = wall;

@@ -30,7 +30,7 @@
 //          w^2/6 = w^2/4 per axis. Noise key "window": "box" takes S = J J^T / 12 instead, the
 //          covariance of the parallelogram J [-1/2, 1/2]^2: a sample's share of a box-filtered
 //          pixel (the camera's differentials scaled by max(1/8, 1/sqrt(spp)), render/differentials.h).
-//          Measured on scenes/colormap/noise_plane.json at 4 spp (scripts/colormap_texture_gt): "box"
+//          Measured on scenes/colormap/noise_plane.json at 4 spp (scripts/experiments/colormap_texture_gt): "box"
 //          halves the relMSE of "gaussian" against the box-filtered reference where the footprint
 //          is below a few periods (the MIP-map convention over-blurs by the window's extra spread);
 //          "mipmap" stays the default so that the image and noise drivers mean the same window.

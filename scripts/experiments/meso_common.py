@@ -1,4 +1,4 @@
-"""Small helpers shared by meso's experiment scripts (scripts/bench, scripts/prefilter_appearance):
+"""Small helpers shared by meso's experiment scripts (scripts/experiments/bench, scripts/experiments/prefilter_appearance):
 running meso, PFM image I/O, scene files with // comment lines, `-D` overrides applied to a
 parsed scene, and `meso prefilter` options from a displacement's map."""
 import hashlib
