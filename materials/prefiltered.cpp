@@ -294,21 +294,9 @@ private:
     Config m;
 };
 
-/// `model` resolved against the scene file's directory; it must be a directory.
-std::string model_dir(const Properties &p) {
-    const std::string name = p.get_string("model");
-    fs::path dir(name);
-    if (dir.is_relative() && !p.context().base_dir.empty()) dir = fs::path(p.context().base_dir) / dir;
-    std::error_code ec;
-    if (!fs::is_directory(dir, ec))
-        p.fail("model", fmt::format("model directory not found: '{}' (make one with `meso prefilter`)", dir.string()));
-    const fs::path canon = fs::weakly_canonical(dir, ec);
-    return ec ? dir.string() : canon.string();
-}
-
 std::shared_ptr<Material> make_prefiltered(const Properties &p) {
     Prefiltered::Config c;
-    const std::string dir = model_dir(p);
+    const std::string dir = prefilter::resolve_model_dir(p);
     try {
         c.model = load_model_cached(dir);
     } catch (const MesoError &e) {
@@ -317,19 +305,15 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
     const int factor = p.get_int("level");
     c.level = c.model->level_for_factor(factor);
     if (!c.level) {
-        std::string have;
-        for (const PrefilteredLevel &L : c.model->levels) have += (have.empty() ? "" : ", ") + std::to_string(L.factor);
-        p.fail("level", fmt::format("the model '{}' has no level with factor {} (it has {})", dir, factor, have));
+        p.fail("level", fmt::format("the model '{}' has no level with factor {} (it has {})", dir, factor,
+                                    c.model->factor_list()));
     }
     const bool has_ir = !c.level->ir.empty();
-    const std::string scaling = p.get_string("scaling", has_ir ? "ir" : "single");
-    Scaling s;
-    if (scaling == "ir") s = Scaling::Ir;
-    else if (scaling == "single") s = Scaling::Single;
-    else if (scaling == "none") s = Scaling::None;
-    else if (scaling == "T") s = Scaling::TOnly;
-    else if (scaling == "S") s = Scaling::SOnly;
-    else p.fail("scaling", fmt::format("expected \"ir\", \"single\", \"none\", \"T\" or \"S\", got \"{}\"", scaling));
+    const std::string default_scaling = has_ir ? "ir" : "single";
+    const Scaling s = p.get_enum<Scaling>("scaling", default_scaling,
+                                          {{"ir", Scaling::Ir}, {"single", Scaling::Single}, {"none", Scaling::None},
+                                           {"T", Scaling::TOnly}, {"S", Scaling::SOnly}});
+    const std::string scaling = p.get_string("scaling", default_scaling);  // as written, for the description
     if (s == Scaling::Ir && !has_ir)
         p.fail("scaling", fmt::format("level x{} of '{}' has no interreflection tables (made without them); "
                                       "use \"single\"", factor, dir));
@@ -339,10 +323,8 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
         c.use_T = s != Scaling::SOnly;
         c.use_S = s != Scaling::TOnly;
     }
-    const std::string estimator = p.get_string("estimator", "quadrature");
-    if (estimator == "stochastic") c.stochastic = true;
-    else if (estimator != "quadrature")
-        p.fail("estimator", fmt::format("expected \"quadrature\" or \"stochastic\", got \"{}\"", estimator));
+    const std::string estimator = p.get_choice("estimator", "quadrature", {"quadrature", "stochastic"});
+    c.stochastic = estimator == "stochastic";
     if (p.has("tiling")) {
         std::vector<float> t;
         if (p.raw("tiling").is_number()) t.assign(2, p.get_float("tiling"));

@@ -10,6 +10,7 @@
 #include <fstream>
 #include "core/error.h"
 #include "core/math.h"
+#include "core/properties.h"
 #include "sampling/warp.h"
 
 namespace fs = std::filesystem;
@@ -171,6 +172,16 @@ std::vector<PatchNdf> lobes_from_image(const Image &img, int lobes, const std::s
     return out;
 }
 
+std::string resolve_model_dir(const Properties &p, const std::string &key) {
+    fs::path dir(p.get_string(key));
+    if (dir.is_relative() && !p.context().base_dir.empty()) dir = fs::path(p.context().base_dir) / dir;
+    std::error_code ec;
+    if (!fs::is_directory(dir, ec))
+        p.fail(key, fmt::format("model directory not found: '{}' (make one with `meso prefilter`)", dir.string()));
+    const fs::path canon = fs::weakly_canonical(dir, ec);
+    return ec ? dir.string() : canon.string();
+}
+
 namespace {
 
 const nlohmann::json &need(const nlohmann::json &j, const char *key, const std::string &where) {
@@ -290,6 +301,12 @@ const PrefilteredLevel *PrefilteredModel::level_for_factor(int factor) const {
     for (const auto &L : levels)
         if (L.factor == factor) return &L;
     return nullptr;
+}
+
+std::string PrefilteredModel::factor_list() const {
+    std::string have;
+    for (const PrefilteredLevel &L : levels) have += (have.empty() ? "" : ", ") + std::to_string(L.factor);
+    return have;
 }
 
 // ---------------------------------------------------------------------------------------

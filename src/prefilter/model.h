@@ -44,7 +44,17 @@
 #include "prefilter/patch_ndf.h"
 #include "bsdf/material.h"
 
+namespace meso {
+class Properties;
+}
+
 namespace meso::prefilter {
+
+/// The model directory named by `key` of `p` (a `prefiltered` material's "model", a LoD
+/// block's "model"): relative paths resolve against the scene file's directory; it must be a
+/// directory (otherwise p.fail(key, ...) suggests `meso prefilter`). Canonical when possible,
+/// so that two spellings of one model share load_model_cached's entry.
+std::string resolve_model_dir(const Properties &p, const std::string &key = "model");
 
 /// Inverse of square_to_uniform_disk_concentric (sampling/warp.h): a point of the closed unit
 /// disk to [0,1]², continuous, exact inverse up to rounding.
@@ -101,6 +111,8 @@ struct PrefilteredModel {
     void save(const std::string &dir) const;
     /// The level with this factor, or null.
     const PrefilteredLevel *level_for_factor(int factor) const;
+    /// The levels' factors, "2, 4", for messages naming what a model has.
+    std::string factor_list() const;
 };
 
 /// Lobes image of a level (see the header) and back.

@@ -519,6 +519,129 @@ Vec3 emission(const tinygltf::Material &m) {
     return e;
 }
 
+/// The camera of camera node `index` at `world` (glTF cameras look down -z, +y up), or null,
+/// with a warning, when it does not exist, is not perspective or its transform is degenerate.
+json node_camera(const std::string &path, const tinygltf::Model &model, int index, const Mat4 &world) {
+    if (size_t(index) >= model.cameras.size()) {
+        warn(path, fmt::format("camera {} does not exist; ignored", index));
+        return json();
+    }
+    const tinygltf::Camera &gc = model.cameras[size_t(index)];
+    if (gc.type != "perspective") {
+        warn(path, fmt::format("camera {} is '{}', not perspective; ignored", index, gc.type));
+        return json();
+    }
+    const auto &pc = gc.perspective;
+    Vec3 o = apply_point(world, Vec3(0, 0, 0));
+    Vec3 fwd = normalize(apply_vector(world, Vec3(0, 0, -1)));
+    Vec3 up = normalize(apply_vector(world, Vec3(0, 1, 0)));
+    double fov = pc.yfov * 180.0 / Pi;
+    if (!(fov > 0 && fov < 180)) fov = 40;
+    int height = 480, width = 640;
+    if (pc.aspectRatio > 0 && std::isfinite(pc.aspectRatio))
+        width = std::max(1, std::min(65536, int(std::lround(height * pc.aspectRatio))));
+    if (!(is_finite(o) && length_squared(fwd) > 0.5f && length_squared(up) > 0.5f)) {
+        warn(path, "the camera node's transform is degenerate; ignored");
+        return json();
+    }
+    return {{"type", "perspective"}, {"origin", vec3_json(o)}, {"target", vec3_json(o + fwd)},
+            {"up", vec3_json(up)},   {"fov", fov},             {"fov_axis", "y"},
+            {"width", width},        {"height", height}};
+}
+
+/// The KHR_lights_punctual light of node `n` at `world` (lights point down the node's -z), or
+/// null: no light, or (with a warning) a missing light or one of an unknown type. Spot lights
+/// become point lights when no `spot` plugin is registered.
+json node_light(const std::string &path, const tinygltf::Model &model, const tinygltf::Node &n, const Mat4 &world) {
+    auto ext = n.extensions.find("KHR_lights_punctual");
+    if (ext == n.extensions.end() || !ext->second.IsObject() || !ext->second.Has("light")) return json();
+    const auto &lv = ext->second.Get("light");
+    int li = lv.IsNumber() ? int(lv.GetNumberAsDouble()) : -1;
+    if (li < 0 || size_t(li) >= model.lights.size()) {
+        warn(path, fmt::format("light {} does not exist; ignored", li));
+        return json();
+    }
+    const tinygltf::Light &gl = model.lights[size_t(li)];
+    Vec3 color(1, 1, 1);
+    if (gl.color.size() >= 3) color = Vec3(float(gl.color[0]), float(gl.color[1]), float(gl.color[2]));
+    Vec3 power = color * float(gl.intensity);
+    if (!is_finite(power)) power = Vec3();
+    Vec3 pos = apply_point(world, Vec3(0, 0, 0));
+    Vec3 dir = normalize(apply_vector(world, Vec3(0, 0, -1)));
+    if (gl.type == "directional")
+        return {{"type", "directional"}, {"direction", vec3_json(dir)}, {"irradiance", vec3_json(power)}};
+    if (gl.type == "spot" && has_plugin_light("spot")) {
+        double cutoff = gl.spot.outerConeAngle * 180.0 / Pi;
+        cutoff = std::isfinite(cutoff) ? std::min(std::max(cutoff, 0.01), 180.0) : 45.0;
+        double beam = gl.spot.innerConeAngle * 180.0 / Pi;
+        beam = std::isfinite(beam) ? std::min(std::max(beam, 0.0), cutoff) : 0.0;
+        return {{"type", "spot"},
+                {"position", vec3_json(pos)},
+                {"direction", vec3_json(dir)},
+                {"intensity", vec3_json(power)},
+                {"cutoff_angle", cutoff},
+                {"beam_width", beam}};
+    }
+    if (gl.type == "spot") {
+        warn(path, fmt::format("light {}: spot lights become point lights", li));
+    } else if (gl.type != "point") {
+        warn(path, fmt::format("light {}: unknown type '{}'; ignored", li, gl.type));
+        return json();
+    }
+    return {{"type", "point"}, {"position", vec3_json(pos)}, {"intensity", vec3_json(power)}};
+}
+
+/// The camera of a file without a usable one: looking at the bounding box of all primitives
+/// from +z, far enough for it to fit a 40° field of view.
+json framing_camera(const std::vector<GltfPrimitive> &prims) {
+    Vec3 bmin(Infinity, Infinity, Infinity), bmax(-Infinity, -Infinity, -Infinity);
+    for (const auto &p : prims)
+        for (const Vec3 &v : p.mesh.positions) bmin = vmin(bmin, v), bmax = vmax(bmax, v);
+    if (!(bmin.x <= bmax.x)) bmin = Vec3(-1, -1, -1), bmax = Vec3(1, 1, 1);
+    Vec3 c = (bmin + bmax) * 0.5f;
+    float r = std::max(1e-3f, length(bmax - bmin) * 0.5f);
+    float d = r / std::sin(radians(20.f)) * 1.05f;
+    return {{"type", "perspective"}, {"origin", vec3_json(c + Vec3(0, 0, d))}, {"target", vec3_json(c)},
+            {"up", json::array({0, 1, 0})}, {"fov", 40}, {"fov_axis", "y"}, {"width", 640}, {"height", 480}};
+}
+
+/// The scene's "shapes" (one `gltf` shape per primitive) and "materials" (one named meso
+/// material per glTF material that a primitive uses); emissive materials make area emitters.
+struct GltfShapes {
+    json materials = json::object();
+    json shapes = json::array();
+    bool any_emitter = false;
+};
+
+GltfShapes primitive_shapes(const std::string &path, const tinygltf::Model &model,
+                            const std::vector<GltfPrimitive> &prims) {
+    GltfShapes out;
+    const std::string file = fs::path(path).filename().string();
+    std::map<int, std::string> material_names;
+    std::set<std::string> used;
+    for (size_t i = 0; i < prims.size(); ++i) {
+        const GltfPrimitive &p = prims[i];
+        json shape = {{"type", "gltf"}, {"filename", file}, {"primitive", i}};
+        if (p.material >= 0) {
+            const tinygltf::Material &gm = model.materials[size_t(p.material)];
+            auto it = material_names.find(p.material);
+            if (it == material_names.end()) {
+                std::string name = unique_name(gm.name, fmt::format("material_{}", p.material), used);
+                out.materials[name] = map_material(path, gm);
+                it = material_names.emplace(p.material, name).first;
+            }
+            shape["material"] = it->second;
+            Vec3 e = emission(gm);
+            if (max_component(e) > 0.f) {
+                shape["emitter"] = {{"type", "area"}, {"radiance", vec3_json(e)}};
+                out.any_emitter = true;
+            }
+        }
+        out.shapes.push_back(std::move(shape));
+    }
+    return out;
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
@@ -561,125 +684,27 @@ json gltf_scene_to_json(const std::string &path) {
     auto prims = std::make_shared<const std::vector<GltfPrimitive>>(extract_primitives(path, model));
     cache_put(path, prims);  // the shapes below read the file through the cache
 
-    json scene = json::object();
-    std::string file = fs::path(path).filename().string();
-
-    // Bounds (for the fallback camera).
-    Vec3 bmin(Infinity, Infinity, Infinity), bmax(-Infinity, -Infinity, -Infinity);
-    for (const auto &p : *prims)
-        for (const Vec3 &v : p.mesh.positions) bmin = vmin(bmin, v), bmax = vmax(bmax, v);
-    if (!(bmin.x <= bmax.x)) bmin = Vec3(-1, -1, -1), bmax = Vec3(1, 1, 1);
-
-    // Camera: the first camera node in traversal order; glTF cameras look down -z, +y up.
+    // Camera: the first usable camera node in traversal order; lights: every punctual light
+    // (one traversal, so warnings come in node order).
     json camera;
     std::vector<json> lights;
-    std::set<std::string> camera_warned;
     traverse(path, model, [&](int, const tinygltf::Node &n, const Mat4 &world) {
-        if (n.camera >= 0 && camera.is_null()) {
-            if (size_t(n.camera) >= model.cameras.size()) {
-                warn(path, fmt::format("camera {} does not exist; ignored", n.camera));
-            } else if (model.cameras[size_t(n.camera)].type != "perspective") {
-                warn(path, fmt::format("camera {} is '{}', not perspective; ignored", n.camera,
-                                       model.cameras[size_t(n.camera)].type));
-            } else {
-                const auto &pc = model.cameras[size_t(n.camera)].perspective;
-                Vec3 o = apply_point(world, Vec3(0, 0, 0));
-                Vec3 fwd = normalize(apply_vector(world, Vec3(0, 0, -1)));
-                Vec3 up = normalize(apply_vector(world, Vec3(0, 1, 0)));
-                double fov = pc.yfov * 180.0 / Pi;
-                if (!(fov > 0 && fov < 180)) fov = 40;
-                int height = 480, width = 640;
-                if (pc.aspectRatio > 0 && std::isfinite(pc.aspectRatio))
-                    width = std::max(1, std::min(65536, int(std::lround(height * pc.aspectRatio))));
-                if (is_finite(o) && length_squared(fwd) > 0.5f && length_squared(up) > 0.5f)
-                    camera = {{"type", "perspective"}, {"origin", vec3_json(o)}, {"target", vec3_json(o + fwd)},
-                              {"up", vec3_json(up)},   {"fov", fov},             {"fov_axis", "y"},
-                              {"width", width},        {"height", height}};
-                else
-                    warn(path, "the camera node's transform is degenerate; ignored");
-            }
-        }
-        // KHR_lights_punctual: lights point down the node's -z.
-        auto ext = n.extensions.find("KHR_lights_punctual");
-        if (ext == n.extensions.end() || !ext->second.IsObject() || !ext->second.Has("light")) return;
-        const auto &lv = ext->second.Get("light");
-        int li = lv.IsNumber() ? int(lv.GetNumberAsDouble()) : -1;
-        if (li < 0 || size_t(li) >= model.lights.size()) {
-            warn(path, fmt::format("light {} does not exist; ignored", li));
-            return;
-        }
-        const tinygltf::Light &gl = model.lights[size_t(li)];
-        Vec3 color(1, 1, 1);
-        if (gl.color.size() >= 3) color = Vec3(float(gl.color[0]), float(gl.color[1]), float(gl.color[2]));
-        Vec3 power = color * float(gl.intensity);
-        if (!is_finite(power)) power = Vec3();
-        Vec3 pos = apply_point(world, Vec3(0, 0, 0));
-        Vec3 dir = normalize(apply_vector(world, Vec3(0, 0, -1)));
-        if (gl.type == "directional") {
-            lights.push_back({{"type", "directional"}, {"direction", vec3_json(dir)}, {"irradiance", vec3_json(power)}});
-        } else if (gl.type == "spot" && has_plugin_light("spot")) {
-            double cutoff = gl.spot.outerConeAngle * 180.0 / Pi;
-            cutoff = std::isfinite(cutoff) ? std::min(std::max(cutoff, 0.01), 180.0) : 45.0;
-            double beam = gl.spot.innerConeAngle * 180.0 / Pi;
-            beam = std::isfinite(beam) ? std::min(std::max(beam, 0.0), cutoff) : 0.0;
-            lights.push_back({{"type", "spot"},
-                              {"position", vec3_json(pos)},
-                              {"direction", vec3_json(dir)},
-                              {"intensity", vec3_json(power)},
-                              {"cutoff_angle", cutoff},
-                              {"beam_width", beam}});
-        } else {
-            if (gl.type == "spot") warn(path, fmt::format("light {}: spot lights become point lights", li));
-            else if (gl.type != "point") {
-                warn(path, fmt::format("light {}: unknown type '{}'; ignored", li, gl.type));
-                return;
-            }
-            lights.push_back({{"type", "point"}, {"position", vec3_json(pos)}, {"intensity", vec3_json(power)}});
-        }
+        if (n.camera >= 0 && camera.is_null()) camera = node_camera(path, model, n.camera, world);
+        json light = node_light(path, model, n, world);
+        if (!light.is_null()) lights.push_back(std::move(light));
     });
-    if (camera.is_null()) {
-        // Looking at the bounding box from +z, far enough for it to fit a 40° field of view.
-        Vec3 c = (bmin + bmax) * 0.5f;
-        float r = std::max(1e-3f, length(bmax - bmin) * 0.5f);
-        float d = r / std::sin(radians(20.f)) * 1.05f;
-        camera = {{"type", "perspective"}, {"origin", vec3_json(c + Vec3(0, 0, d))}, {"target", vec3_json(c)},
-                  {"up", json::array({0, 1, 0})}, {"fov", 40}, {"fov_axis", "y"}, {"width", 640}, {"height", 480}};
-    }
-    scene["camera"] = camera;
+
+    json scene = json::object();
+    scene["camera"] = camera.is_null() ? framing_camera(*prims) : camera;
     // Written out so that -D integrator.* / sampler.* overrides work on glTF scenes too.
     scene["integrator"] = {{"type", "path"}};
     scene["sampler"] = {{"type", "independent"}, {"sample_count", 16}};
 
-    // Materials: one named meso material per glTF material that a primitive uses.
-    json materials = json::object();
-    std::map<int, std::string> material_names;
-    std::set<std::string> used;
-    json shapes = json::array();
-    bool any_emitter = false;
-    for (size_t i = 0; i < prims->size(); ++i) {
-        const GltfPrimitive &p = (*prims)[i];
-        json shape = {{"type", "gltf"}, {"filename", file}, {"primitive", i}};
-        if (p.material >= 0) {
-            const tinygltf::Material &gm = model.materials[size_t(p.material)];
-            auto it = material_names.find(p.material);
-            if (it == material_names.end()) {
-                std::string name = unique_name(gm.name, fmt::format("material_{}", p.material), used);
-                materials[name] = map_material(path, gm);
-                it = material_names.emplace(p.material, name).first;
-            }
-            shape["material"] = it->second;
-            Vec3 e = emission(gm);
-            if (max_component(e) > 0.f) {
-                shape["emitter"] = {{"type", "area"}, {"radiance", vec3_json(e)}};
-                any_emitter = true;
-            }
-        }
-        shapes.push_back(std::move(shape));
-    }
-    if (!materials.empty()) scene["materials"] = materials;
-    scene["shapes"] = shapes;
+    GltfShapes shapes = primitive_shapes(path, model, *prims);
+    if (!shapes.materials.empty()) scene["materials"] = shapes.materials;
+    scene["shapes"] = shapes.shapes;
 
-    if (lights.empty() && !any_emitter) {
+    if (lights.empty() && !shapes.any_emitter) {
         warn(path, "no lights: adding a constant environment of radiance 1");
         lights.push_back({{"type", "constant"}, {"radiance", 1.0}});
     }

@@ -15,12 +15,9 @@
 #include <nlohmann/json.hpp>
 #include "core/error.h"
 #include "geometry/shape.h"
-#include "geometry/displacement.h"
 #include "geometry/shell_shape.h"
-#include "prefilter/model.h"
 #include "lights/light.h"
-#include "geometry/lod.h"
-#include "filter/transfer_filter.h"
+#include "lod/lod_build.h"
 #include "bsdf/material.h"
 #include "scene/gltf.h"
 #include "scene/overrides.h"
@@ -158,137 +155,6 @@ struct DeclGuard {
     }
 };
 
-/// `lod.model`, resolved against the scene file's directory; it must be a directory.
-std::string lod_model_dir(const Properties &lp) {
-    fs::path dir(lp.get_string("model"));
-    if (dir.is_relative() && !lp.context().base_dir.empty()) dir = fs::path(lp.context().base_dir) / dir;
-    std::error_code ec;
-    if (!fs::is_directory(dir, ec))
-        lp.fail("model", fmt::format("model directory not found: '{}' (make one with `meso prefilter`)", dir.string()));
-    const fs::path canon = fs::weakly_canonical(dir, ec);
-    return ec ? dir.string() : canon.string();
-}
-
-/// A shape's "lod" block: the chain's levels 1.. as shell shapes, each seen only by rays of
-/// its level, over the least-squares heights h_low of a prefiltered model (`model`, paper 004
-/// §4.1, with the `prefiltered` material of that level), box-downsampled heightfields, or,
-/// with same_model, the original one.
-void add_lod_levels(const Properties &lp, const std::shared_ptr<Shape> &shape, Scene &scene) {
-    auto shell = std::dynamic_pointer_cast<ShellShape>(shape);
-    if (!shell) lp.fail("a LoD chain needs a shell-mapped displacement (\"displacement\": {..., \"mode\": \"shell\"})");
-    std::vector<float> factors = lp.get_floats("factors");
-    if (factors.empty() || factors[0] != 1.f) lp.fail("factors", "expected [1, f1, f2, ...]: level 0 is the original map (factor 1)");
-    if (factors.size() > 32) lp.fail("factors", "at most 32 levels");
-    auto group = std::make_shared<LodGroup>();
-    try {
-        group->chain = LodChain(factors);
-    } catch (const MesoError &e) {
-        lp.fail("factors", e.what());
-    }
-    group->bias = lp.get_float("bias", 1.f);
-    if (!(group->bias > 0.f) || !std::isfinite(group->bias)) lp.fail("bias", "expected a positive number (footprint scale)");
-    std::string blend = lp.get_string("blend", "stochastic");
-    if (blend == "stochastic") group->blend = LodBlend::Stochastic;
-    else if (blend == "blend") group->blend = LodBlend::Blend;
-    else lp.fail("blend", fmt::format("expected \"stochastic\" or \"blend\", got \"{}\"", blend));
-    const bool same_model = lp.get_bool("same_model", false);
-    const Displacement &disp = shell->displacement();
-    // Levels of a displacement with a height transfer g: box-downsampled g(f) ("exact"), or the
-    // paper 001 §7 g-bar of each block's Gaussian statistics of f ("gaussian").
-    const std::string tf = lp.get_string("transfer_filter", "exact");
-    if (tf != "exact" && tf != "gaussian")
-        lp.fail("transfer_filter", fmt::format("expected \"exact\" or \"gaussian\", got \"{}\"", tf));
-    const bool gbar = tf == "gaussian";
-    if (gbar && !disp.untransferred)
-        lp.fail("transfer_filter", "only meaningful when the shape's displacement has a \"transfer\"");
-    if (gbar && (lp.has("model") || same_model))
-        lp.fail("transfer_filter", "applies to box-downsampled levels only (not with \"model\" or \"same_model\")");
-
-    // A prefiltered model (`meso prefilter`): its h_low per level, and its material per level.
-    std::optional<prefilter::PrefilteredModel> model;
-    std::string model_dir;
-    if (lp.has("model")) {
-        if (same_model) lp.fail("same_model", "cannot be combined with \"model\" (a prefiltered model's levels are its own)");
-        model_dir = lod_model_dir(lp);
-        try {
-            model = prefilter::PrefilteredModel::load(model_dir);
-        } catch (const MesoError &e) {
-            lp.fail("model", e.what());
-        }
-        if (model->map_width != disp.field->width() || model->map_height != disp.field->height())
-            lp.fail("model", fmt::format("the model '{}' was made from a {}x{} map, the displacement's map ({}) is {}x{}",
-                                         model_dir, model->map_width, model->map_height, disp.source,
-                                         disp.field->width(), disp.field->height()));
-        const double hs = model->height_scale;
-        if (std::abs(hs - double(disp.scale)) > 1e-5 * std::max(std::abs(hs), std::abs(double(disp.scale))))
-            fmt::print(stderr, "{}: {}: warning: the model '{}' was made with height_scale {} but the displacement's scale "
-                               "is {}: its NDFs and scaling functions describe other geometry\n",
-                       lp.file(), lp.key_path("model"), model_dir, hs, disp.scale);
-        for (size_t k = 1; k < factors.size(); ++k)
-            if (factors[k] != std::floor(factors[k]) || !model->level_for_factor(int(factors[k]))) {
-                std::string have;
-                for (const auto &L : model->levels) have += (have.empty() ? "" : ", ") + std::to_string(L.factor);
-                lp.fail("factors", fmt::format("level {}: factor {} is not a level of the model '{}' (it has {})", k,
-                                               factors[k], model_dir, have));
-            }
-    } else {
-        for (const char *key : {"scaling", "estimator"})
-            if (lp.has(key)) lp.fail(key, "only applies with a prefiltered \"model\"");
-    }
-
-    std::vector<std::shared_ptr<Material>> materials;
-    if (lp.has("materials")) {
-        for (const Properties &m : lp.children("materials")) materials.push_back(create_material(m));
-        if (materials.size() != factors.size())
-            lp.fail("materials", fmt::format("expected one material per level ({}), got {}", factors.size(), materials.size()));
-        shape->material = materials[0];
-    } else if (model) {
-        // Level k: {"type": "prefiltered", "model": ..., "level": f_k, "scaling": ..., "estimator": ...,
-        // "tiling": the displacement's}; errors name lod.scaling etc. (the keys as the user wrote them).
-        materials.push_back(shape->material);
-        const std::string scaling = lp.has("scaling") ? lp.get_string("scaling") : std::string();
-        const std::string estimator = lp.has("estimator") ? lp.get_string("estimator") : std::string();
-        for (size_t k = 1; k < factors.size(); ++k) {
-            json mj = {{"type", "prefiltered"},
-                       {"model", model_dir},
-                       {"level", int(factors[k])},
-                       {"tiling", {disp.tiling_u, disp.tiling_v}}};
-            if (!scaling.empty()) mj["scaling"] = scaling;
-            if (!estimator.empty()) mj["estimator"] = estimator;
-            materials.push_back(create_material(Properties(mj, lp.path(), lp.context_ptr())));
-        }
-    }
-    shell->texel_grid(group->texel_w, group->texel_h);
-    shape->lod = group;
-    shape->lod_level = 0;
-    for (size_t k = 1; k < factors.size(); ++k) {
-        std::shared_ptr<const Heightfield> field = disp.field;
-        if (model) {
-            // h_low is in the original map's units: the displacement's scale and offset apply.
-            const prefilter::PrefilteredLevel *L = model->level_for_factor(int(factors[k]));
-            try {
-                field = std::make_shared<Heightfield>(L->h_low, disp.scale, disp.offset);
-            } catch (const MesoError &e) {
-                lp.fail("model", e.what());
-            }
-        } else if (!same_model) {
-            const float f = factors[k];
-            if (f != std::floor(f) || field->width() % int(f) != 0 || field->height() % int(f) != 0)
-                lp.fail("factors", fmt::format("level {}: factor {} must be an integer dividing the map size {}x{} "
-                                               "(levels are box-downsampled)", k, f, field->width(), field->height()));
-            field = gbar ? std::make_shared<Heightfield>(transfer_downsampled(*disp.untransferred, *disp.transfer, int(f)),
-                                                         disp.scale, disp.offset)
-                         : std::make_shared<Heightfield>(field->box_downsampled(int(f)), 1.f, 0.f);
-        }
-        auto level = shell->with_field(field, fmt::format("{} LoD level {} (x{})", lp.path(), k, factors[k]));
-        level->material = materials.empty() ? shape->material : materials[k];
-        level->lod = group;
-        level->lod_level = int(k);
-        scene.shapes.push_back(level);
-    }
-    lp.check_unused("lod");
-}
-
 std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, size_t max_triangles) {
     auto ctx = std::make_shared<LoadContext>();
     ctx->max_triangles = max_triangles;
@@ -368,7 +234,9 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, siz
                 scene->lights.push_back(emitter);
             }
             scene->shapes.push_back(shape);
-            if (lod) add_lod_levels(*lod, shape, *scene);
+            if (lod)
+                for (std::shared_ptr<Shape> &level : build_lod_levels(parse_lod_spec(*lod), shape))
+                    scene->shapes.push_back(std::move(level));
         }
     }
 

@@ -1,0 +1,190 @@
+// LoD chains from a shape's "lod" block: lod/lod_build.h.
+#include "lod/lod_build.h"
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <optional>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include "core/error.h"
+#include "core/registry.h"
+#include "geometry/displacement.h"
+#include "geometry/shell_shape.h"
+#include "prefilter/model.h"
+
+namespace meso {
+
+namespace {
+
+/// "factors", "bias" and "blend": the chain and how a path picks its level.
+void parse_chain(const Properties &lp, LodSpec &spec) {
+    spec.factors = lp.get_floats("factors");
+    if (spec.factors.empty() || spec.factors[0] != 1.f)
+        lp.fail("factors", "expected [1, f1, f2, ...]: level 0 is the original map (factor 1)");
+    if (spec.factors.size() > 32) lp.fail("factors", "at most 32 levels");
+    try {
+        spec.chain = LodChain(spec.factors);
+    } catch (const MesoError &e) {
+        lp.fail("factors", e.what());
+    }
+    spec.bias = lp.get_float("bias", 1.f);
+    if (!(spec.bias > 0.f) || !std::isfinite(spec.bias)) lp.fail("bias", "expected a positive number (footprint scale)");
+    spec.blend = lp.get_enum<LodBlend>("blend", "stochastic", {{"stochastic", LodBlend::Stochastic}, {"blend", LodBlend::Blend}});
+}
+
+/// "model", "scaling" and "estimator": the prefiltered model the levels come from, if any.
+void parse_model(const Properties &lp, LodSpec &spec) {
+    if (lp.has("model")) {
+        if (spec.same_model) lp.fail("same_model", "cannot be combined with \"model\" (a prefiltered model's levels are its own)");
+        spec.model_dir = prefilter::resolve_model_dir(lp);
+    } else {
+        for (const char *key : {"scaling", "estimator"})
+            if (lp.has(key)) lp.fail(key, "only applies with a prefiltered \"model\"");
+    }
+}
+
+/// "materials" (explicit, one per level), else, with a model, what the generated prefiltered
+/// materials are given ("scaling", "estimator"; read only then, so that they are unknown keys
+/// next to explicit materials).
+void parse_materials(const Properties &lp, LodSpec &spec) {
+    if (lp.has("materials")) {
+        spec.materials = lp.children("materials");
+        if (spec.materials.size() != spec.factors.size())
+            lp.fail("materials", fmt::format("expected one material per level ({}), got {}", spec.factors.size(),
+                                             spec.materials.size()));
+    } else if (spec.has_model()) {
+        if (lp.has("scaling")) spec.scaling = lp.get_string("scaling");
+        if (lp.has("estimator")) spec.estimator = lp.get_string("estimator");
+    }
+}
+
+/// The shape's shell-mapped displacement (LoD levels are shell shapes over other heightfields).
+std::shared_ptr<ShellShape> lod_shell(const LodSpec &spec, const std::shared_ptr<Shape> &shape) {
+    auto shell = std::dynamic_pointer_cast<ShellShape>(shape);
+    if (!shell) spec.block.fail("a LoD chain needs a shell-mapped displacement (\"displacement\": {..., \"mode\": \"shell\"})");
+    if (spec.transfer_filter == LodTransferFilter::Gaussian && !shell->displacement().untransferred)
+        spec.block.fail("transfer_filter", "only meaningful when the shape's displacement has a \"transfer\"");
+    return shell;
+}
+
+/// The prefiltered model of spec.model_dir, checked against the displacement: same map size,
+/// (warning) same height scale, and a level for every factor of the chain.
+prefilter::PrefilteredModel load_lod_model(const LodSpec &spec, const Displacement &disp) {
+    const Properties &lp = spec.block;
+    const std::string &dir = spec.model_dir;
+    prefilter::PrefilteredModel model;
+    try {
+        model = prefilter::PrefilteredModel::load(dir);
+    } catch (const MesoError &e) {
+        lp.fail("model", e.what());
+    }
+    if (model.map_width != disp.field->width() || model.map_height != disp.field->height())
+        lp.fail("model", fmt::format("the model '{}' was made from a {}x{} map, the displacement's map ({}) is {}x{}", dir,
+                                     model.map_width, model.map_height, disp.source, disp.field->width(),
+                                     disp.field->height()));
+    const double hs = model.height_scale;
+    if (std::abs(hs - double(disp.scale)) > 1e-5 * std::max(std::abs(hs), std::abs(double(disp.scale))))
+        fmt::print(stderr, "{}: {}: warning: the model '{}' was made with height_scale {} but the displacement's scale "
+                           "is {}: its NDFs and scaling functions describe other geometry\n",
+                   lp.file(), lp.key_path("model"), dir, hs, disp.scale);
+    for (size_t k = 1; k < spec.factors.size(); ++k) {
+        const float f = spec.factors[k];
+        if (f != std::floor(f) || !model.level_for_factor(int(f)))
+            lp.fail("factors", fmt::format("level {}: factor {} is not a level of the model '{}' (it has {})", k, f, dir,
+                                           model.factor_list()));
+    }
+    return model;
+}
+
+/// One material per level (index = level), or none (every level keeps the shape's material).
+/// Explicit materials replace the shape's own; with a model, levels 1.. get the generated
+/// prefiltered material of their factor (see the header).
+std::vector<std::shared_ptr<Material>> level_materials(const LodSpec &spec, Shape &shape, const Displacement &disp) {
+    std::vector<std::shared_ptr<Material>> materials;
+    if (!spec.materials.empty()) {
+        for (const Properties &m : spec.materials) materials.push_back(create_material(m));
+        shape.material = materials[0];
+    } else if (spec.has_model()) {
+        materials.push_back(shape.material);
+        for (size_t k = 1; k < spec.factors.size(); ++k) {
+            nlohmann::json mj = {{"type", "prefiltered"},
+                                 {"model", spec.model_dir},
+                                 {"level", int(spec.factors[k])},
+                                 {"tiling", {disp.tiling_u, disp.tiling_v}}};
+            if (!spec.scaling.empty()) mj["scaling"] = spec.scaling;
+            if (!spec.estimator.empty()) mj["estimator"] = spec.estimator;
+            // Located at the lod block: errors read "lod.scaling" etc., the keys the user wrote.
+            materials.push_back(create_material(Properties(mj, spec.block.path(), spec.block.context_ptr())));
+        }
+    }
+    return materials;
+}
+
+/// The heightfield of level k: the model's h_low (in the original map's units, so the
+/// displacement's scale and offset apply), the box-downsampled map (g(f), or g-bar of f's block
+/// statistics), or, with same_model, the original.
+std::shared_ptr<const Heightfield> level_field(const LodSpec &spec, const Displacement &disp,
+                                               const prefilter::PrefilteredModel *model, size_t k) {
+    const Properties &lp = spec.block;
+    const float f = spec.factors[k];
+    if (model) {
+        try {
+            return std::make_shared<Heightfield>(model->level_for_factor(int(f))->h_low, disp.scale, disp.offset);
+        } catch (const MesoError &e) {
+            lp.fail("model", e.what());
+        }
+    }
+    std::shared_ptr<const Heightfield> field = disp.field;
+    if (spec.same_model) return field;
+    if (f != std::floor(f) || field->width() % int(f) != 0 || field->height() % int(f) != 0)
+        lp.fail("factors", fmt::format("level {}: factor {} must be an integer dividing the map size {}x{} "
+                                       "(levels are box-downsampled)", k, f, field->width(), field->height()));
+    if (spec.transfer_filter == LodTransferFilter::Gaussian)
+        return std::make_shared<Heightfield>(transfer_downsampled(*disp.untransferred, *disp.transfer, int(f)), disp.scale,
+                                             disp.offset);
+    return std::make_shared<Heightfield>(field->box_downsampled(int(f)), 1.f, 0.f);
+}
+
+}  // namespace
+
+LodSpec parse_lod_spec(const Properties &lp) {
+    LodSpec spec(lp);
+    parse_chain(lp, spec);
+    spec.same_model = lp.get_bool("same_model", false);
+    spec.transfer_filter = lp.get_enum<LodTransferFilter>(
+        "transfer_filter", "exact", {{"exact", LodTransferFilter::Exact}, {"gaussian", LodTransferFilter::Gaussian}});
+    if (spec.transfer_filter == LodTransferFilter::Gaussian && (lp.has("model") || spec.same_model))
+        lp.fail("transfer_filter", "applies to box-downsampled levels only (not with \"model\" or \"same_model\")");
+    parse_model(lp, spec);
+    parse_materials(lp, spec);
+    lp.check_unused("lod");
+    return spec;
+}
+
+std::vector<std::shared_ptr<Shape>> build_lod_levels(const LodSpec &spec, const std::shared_ptr<Shape> &shape) {
+    const std::shared_ptr<ShellShape> shell = lod_shell(spec, shape);
+    const Displacement &disp = shell->displacement();
+    std::optional<prefilter::PrefilteredModel> model;
+    if (spec.has_model()) model = load_lod_model(spec, disp);
+    const std::vector<std::shared_ptr<Material>> materials = level_materials(spec, *shape, disp);
+
+    auto group = std::make_shared<LodGroup>();
+    group->chain = spec.chain;
+    group->bias = spec.bias;
+    group->blend = spec.blend;
+    shell->texel_grid(group->texel_w, group->texel_h);
+    shape->lod = group;
+    shape->lod_level = 0;
+    std::vector<std::shared_ptr<Shape>> levels;
+    for (size_t k = 1; k < spec.factors.size(); ++k) {
+        auto level = shell->with_field(level_field(spec, disp, model ? &*model : nullptr, k),
+                                       fmt::format("{} LoD level {} (x{})", spec.block.path(), k, spec.factors[k]));
+        level->material = materials.empty() ? shape->material : materials[k];
+        level->lod = group;
+        level->lod_level = int(k);
+        levels.push_back(level);
+    }
+    return levels;
+}
+
+}  // namespace meso
