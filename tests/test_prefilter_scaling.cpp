@@ -232,7 +232,11 @@ TEST(CmdPrefilter, BadInputIsNamed) {
     EXPECT_NE(err({"--generator", "fbm", "-o", "/tmp/x", "--map", "a.exr"}).find("exactly one of --map"), std::string::npos);
     EXPECT_NE(err({"--generator", "fbm", "--size", "64", "--scales", "7", "-o", "/tmp/x"}).find("factor 7"), std::string::npos);
     EXPECT_NE(err({"--generator", "fbm", "--scales", "8,4", "-o", "/tmp/x"}).find("increase"), std::string::npos);
-    EXPECT_NE(err({"--generator", "fbm", "--interreflections", "maybe", "-o", "/tmp/x"}).find("on or off"), std::string::npos);
+    EXPECT_NE(err({"--generator", "fbm", "--interreflections", "maybe", "-o", "/tmp/x"})
+                  .find(R"(--interreflections: expected "on" or "off", got "maybe")"),
+              std::string::npos);
+    EXPECT_NE(err({"--generator", "fbm", "--flow", "x", "-o", "/tmp/x"}).find(R"(--flow: expected "visible" or "eq5", got "x")"),
+              std::string::npos);
     EXPECT_NE(err({"--generator", "fbm", "--base", R"({"type": "conductor", "material": "Au", "alpha": 0})", "-o", "/tmp/x"})
                   .find("--base"),
               std::string::npos);

@@ -52,29 +52,22 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::albedo(const PatchRegio
     return run(region, nullptr, wo, samples, seed, max_bounces);
 }
 
-EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &R, const Vec3 *wi_fixed, Vec3 wo,
-                                                             size_t samples, uint64_t seed, int max_bounces) const {
-    if (!std::isfinite(R.x0) || !std::isfinite(R.x1) || !std::isfinite(R.y0) || !std::isfinite(R.y1) ||
-        !(R.x1 > R.x0) || !(R.y1 > R.y0))
-        throw MesoError(fmt::format("effective BRDF: empty or non-finite patch [{}, {}) x [{}, {})", R.x0, R.x1,
-                                    R.y0, R.y1));
-    if (samples == 0) throw MesoError("effective BRDF: samples must be at least 1");
-    if (max_bounces < 1) throw MesoError(fmt::format("effective BRDF: max_bounces must be >= 1, got {}", max_bounces));
-    wo = checked_direction(wo, "wo");
+namespace {
 
-    Estimate est;
-    est.samples = samples;
-    // Below the horizon the macro BRDF is zero (and nothing is visible from wo).
-    if (!(wo.z > 0.f) || (wi_fixed && !(wi_fixed->z > 0.f))) return est;
+/// Lines of sight of EffectiveBrdfEstimator::run and their paths: shot along -wo from the
+/// region Q over patch R (see the header), next-event terms towards wi at every vertex.
+struct PathSampler {
+    const Heightfield &hf;
+    const Material &base;
+    const EffectiveBrdfEstimator::Options &opt;
+    const PatchRegion &R;
+    const ShootingRegion Q;
+    const Vec3 *wi_fixed;  ///< null: albedo mode (a cosine-distributed wi per line)
+    const Vec3 wo;
+    const int max_bounces;
 
-    // The shooting region Q (see the header): whole periods need no rejection.
-    const ShootingRegion Q = shooting_region(m_hf, R, wo);
-    const bool wrap_x = Q.wrap_x, wrap_y = Q.wrap_y;
-    const double qx0 = Q.x0, qx1 = Q.x1, qy0 = Q.y0, qy1 = Q.y1, z_top = Q.z_top;
-    const Vec3 d_view = -wo;
-
-    // One line of sight plus its path; returns false when the first hit is not in P.
-    auto sample_one = [&](PCG32 &rng, Spectrum &contrib, bool &leak, size_t &vertices) -> bool {
+    /// One line of sight plus its path; false when the first hit is not in P (`leak`: no hit).
+    bool sample(PCG32 &rng, Spectrum &contrib, bool &leak, size_t &vertices) const {
         leak = false;
         contrib = Spectrum(0.f);
         Vec3 wi;
@@ -89,27 +82,31 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
             const float pdf = square_to_cosine_hemisphere_pdf(wi);
             inv_pdf = pdf > 0.f ? 1.f / pdf : 0.f;
         }
-        const double qx = qx0 + (qx1 - qx0) * rng.next_double(), qy = qy0 + (qy1 - qy0) * rng.next_double();
+        const double qx = Q.x0 + (Q.x1 - Q.x0) * rng.next_double(), qy = Q.y0 + (Q.y1 - Q.y0) * rng.next_double();
         const double fqx = std::floor(qx), fqy = std::floor(qy);
         const int64_t ox = int64_t(fqx), oy = int64_t(fqy);
-        const Vec3 o(float(qx - fqx), float(qy - fqy), float(z_top));
+        const Vec3 o(float(qx - fqx), float(qy - fqy), float(Q.z_top));
         HeightfieldHit hit;
-        if (!m_hf.intersect(o, d_view, 0.f, Infinity, hit, ox, oy)) {
+        if (!hf.intersect(o, -wo, 0.f, Infinity, hit, ox, oy)) {
             leak = true;
             return false;
         }
-        Vertex v = make_vertex(m_hf, hit, ox, oy, m_opt.macro_frame);
-        if (!wrap_x) {
+        const Vertex v = make_vertex(hf, hit, ox, oy, opt.macro_frame);
+        if (!Q.wrap_x) {
             const double ax = double(ox) + double(hit.x);
             if (ax < R.x0 || ax >= R.x1) return false;
         }
-        if (!wrap_y) {
+        if (!Q.wrap_y) {
             const double ay = double(oy) + double(hit.y);
             if (ay < R.y0 || ay >= R.y1) return false;
         }
         if (inv_pdf == 0.f) return true;  // the rim of the disk: a zero sample, still counted
+        contrib = path_sum(rng, v, wi, vertices) * inv_pdf;
+        return true;
+    }
 
-        // The path (eq. 15-16): next-event terms towards wi at every vertex.
+    /// The path from first vertex v (eq. 15-16): Σ_k throughput_k f(x_k) towards wi, unshadowed.
+    Spectrum path_sum(PCG32 &rng, Vertex v, Vec3 wi, size_t &vertices) const {
         Spectrum throughput(1.f), sum(0.f);
         Vec3 w_out = wo;  // towards the previous vertex (the viewer for x_1)
         for (int k = 1;; ++k) {
@@ -119,18 +116,18 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
             if (!(lwo.z > 0.f)) break;  // round-off at a grazing hit: the path sees the back
             const Vec3 lwi = fr.to_local(wi);
             if (lwi.z > 0.f && dot(v.n, wi) > 0.f) {
-                const Spectrum f = m_base.eval(v.ctx, lwo, lwi);
-                if (!f.is_black() && !m_hf.occluded(spawn_origin(v), wi, 0.f, Infinity, v.ox, v.oy))
+                const Spectrum f = base.eval(v.ctx, lwo, lwi);
+                if (!f.is_black() && !hf.occluded(spawn_origin(v), wi, 0.f, Infinity, v.ox, v.oy))
                     sum += throughput * f;
             }
             if (k >= max_bounces) break;
             // Continue by sampling the base material.
             const float u_lobe = rng.next_float(), u0 = rng.next_float(), u1 = rng.next_float();
             BSDFSample bs;
-            if (!m_base.sample(v.ctx, lwo, u_lobe, Vec2(u0, u1), bs) || bs.weight.is_black() || !(bs.wi.z > 0.f))
+            if (!base.sample(v.ctx, lwo, u_lobe, Vec2(u0, u1), bs) || bs.weight.is_black() || !(bs.wi.z > 0.f))
                 break;
             throughput *= bs.weight;
-            if (m_opt.roulette_start > 0 && k >= m_opt.roulette_start) {
+            if (opt.roulette_start > 0 && k >= opt.roulette_start) {
                 const float q = std::min(1.f, throughput.max());
                 if (!(rng.next_float() < q)) break;
                 throughput *= 1.f / q;
@@ -138,15 +135,18 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
             const Vec3 dir = normalize(fr.to_world(bs.wi));
             if (!(dir.z > -1.f) || !(dot(v.n, dir) > 0.f)) break;
             HeightfieldHit next;
-            if (!m_hf.intersect(spawn_origin(v), dir, 0.f, Infinity, next, v.ox, v.oy)) break;  // escaped
-            v = make_vertex(m_hf, next, v.ox, v.oy, m_opt.macro_frame);
+            if (!hf.intersect(spawn_origin(v), dir, 0.f, Infinity, next, v.ox, v.oy)) break;  // escaped
+            v = make_vertex(hf, next, v.ox, v.oy, opt.macro_frame);
             w_out = -dir;
         }
-        contrib = sum * inv_pdf;
-        return true;
-    };
+        return sum;
+    }
+};
 
-    const size_t chunk = m_opt.chunk, n_chunks = (samples + chunk - 1) / chunk;
+/// `samples` lines of sight in chunks of `chunk`, one RNG stream per chunk (in parallel),
+/// summed in chunk order: deterministic whatever the thread count.
+Sums sum_samples(const PathSampler &ps, size_t samples, size_t chunk, uint64_t seed) {
+    const size_t n_chunks = (samples + chunk - 1) / chunk;
     std::vector<Sums> sums(n_chunks);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n_chunks), [&](const tbb::blocked_range<size_t> &r) {
         for (size_t c = r.begin(); c < r.end(); ++c) {
@@ -156,7 +156,7 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
             for (size_t i = 0; i < n; ++i) {
                 Spectrum contrib;
                 bool leak = false;
-                if (!sample_one(rng, contrib, leak, s.vertices)) {
+                if (!ps.sample(rng, contrib, leak, s.vertices)) {
                     s.leaked += leak ? 1 : 0;
                     continue;
                 }
@@ -176,12 +176,36 @@ EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &
         tot.vertices += s.vertices;
         for (int ch = 0; ch < 3; ++ch) tot.sum[ch] += s.sum[ch], tot.sum2[ch] += s.sum2[ch];
     }
+    return tot;
+}
+
+}  // namespace
+
+EffectiveBrdfEstimator::Estimate EffectiveBrdfEstimator::run(const PatchRegion &R, const Vec3 *wi_fixed, Vec3 wo,
+                                                             size_t samples, uint64_t seed, int max_bounces) const {
+    if (!std::isfinite(R.x0) || !std::isfinite(R.x1) || !std::isfinite(R.y0) || !std::isfinite(R.y1) ||
+        !(R.x1 > R.x0) || !(R.y1 > R.y0))
+        throw MesoError(fmt::format("effective BRDF: empty or non-finite patch [{}, {}) x [{}, {})", R.x0, R.x1,
+                                    R.y0, R.y1));
+    if (samples == 0) throw MesoError("effective BRDF: samples must be at least 1");
+    if (max_bounces < 1) throw MesoError(fmt::format("effective BRDF: max_bounces must be >= 1, got {}", max_bounces));
+    wo = checked_direction(wo, "wo");
+
+    Estimate est;
+    est.samples = samples;
+    // Below the horizon the macro BRDF is zero (and nothing is visible from wo).
+    if (!(wo.z > 0.f) || (wi_fixed && !(wi_fixed->z > 0.f))) return est;
+
+    // The shooting region Q (see the header): whole periods need no rejection.
+    const PathSampler ps{m_hf, m_base, m_opt, R, shooting_region(m_hf, R, wo), wi_fixed, wo, max_bounces};
+    const ShootingRegion &Q = ps.Q;
+    const Sums tot = sum_samples(ps, samples, m_opt.chunk, seed);
     est.accepted = tot.accepted;
     est.leaked = tot.leaked;
 
     // A(wo) = cos(theta_o) |Q| / |P| Pr(hit in P) (exactly cos(theta_o) over whole periods).
-    const double cos_o = wo.z, ratio = (qx1 - qx0) * (qy1 - qy0) / R.area();
-    if (wrap_x && wrap_y) {
+    const double cos_o = wo.z, ratio = (Q.x1 - Q.x0) * (Q.y1 - Q.y0) / R.area();
+    if (Q.wrap_x && Q.wrap_y) {
         est.projected_area = cos_o;
     } else {
         const double pa = double(tot.accepted) / double(samples);

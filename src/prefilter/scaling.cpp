@@ -77,44 +77,62 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
     m_count_low.assign(size_t(M) * M * m_bins, 0);
 }
 
-void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
-    const int M = m_opt.M, N = m_opt.N, B = m_bins;
-    const int patch = int(task / size_t(B)), bo = int(task % size_t(B));
-    const int pa = patch % M, pb = patch / M;
-    const int box = bo % N, boy = bo / N;
-    const bool ir = m_opt.interreflections;
-    const int max_vertices = ir ? m_opt.max_bounces : 1;
-    PCG32 rng(hash_combine(round_seed, uint64_t(task)), mix_bits(round_seed ^ 0x5ca1eULL));
-    std::vector<Vec3> wi(static_cast<size_t>(B));
-    LineBuf buf(B);
-    std::vector<Spectrum> fl(static_cast<size_t>(B));
-    std::vector<size_t> vis;
-    std::vector<double> vw;
-    const int J = m_opt.low_nodes;
-    const Material &base_low = m_low_mat.base();
-    const size_t base_idx = task * size_t(B) * 3;
+/// One (patch P, ωo bin) task of a round (scaling.h, "Work"): its random stream, the ωi
+/// directions of the current line of sight, the line's splat buffers and the task's counters.
+/// Nested in ScalingEstimator, so it adds to the estimator's sums directly (each task owns its
+/// slice of them).
+struct ScalingEstimator::Task {
+    ScalingEstimator &est;
+    const size_t task;
+    const uint64_t round_seed;
+    const int M, N, B;      ///< T's grid, S's grid per axis, N² bins
+    const int pa, pb;       ///< patch P = (pa, pb) of the M x M grid
+    const int box, boy;     ///< the ωo bin (box, boy) of the N x N square
+    const size_t base_idx;  ///< this task's [bi][ch] slice of the sums
+    PCG32 rng;              ///< path continuations and f'_low node selection (lines have their own streams)
+    std::vector<Vec3> wi;   ///< ωi of every bin for the current line (one random shift of the grid per line)
+    LineBuf buf;            ///< a: single-bounce (or f'_low) terms of the line, b: all bounces
+    std::vector<Spectrum> fl;  ///< f'_low(ωi of every bin, ωo) of the current line
+    std::vector<size_t> vis;   ///< f'_low's nodes facing ωo ...
+    std::vector<double> vw;    ///< ... and their weights c_k
+    size_t orig_lines = 0, low_lines = 0, vertices = 0, rejected = 0, leaked = 0;
+    uint32_t acc_orig = 0, acc_low = 0;
+
+    Task(ScalingEstimator &e, size_t t, uint64_t seed)
+        : est(e), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
+          pa(int(t / size_t(B)) % M), pb(int(t / size_t(B)) / M), box(int(t % size_t(B)) % N),
+          boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3),
+          rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)), buf(B),
+          fl(static_cast<size_t>(B)) {}
 
     // Line k's own stream: its ωo, ωi shift and position in P are the same on G_orig and on
     // G_low (common random numbers: the two estimates of a bin are positively correlated).
-    auto line_rng = [&](int k) {
+    PCG32 line_rng(int k) const {
         return PCG32(hash_combine(hash_combine(round_seed, uint64_t(task)), uint64_t(k)), mix_bits(round_seed ^ 0x11e5ULL));
-    };
-    auto draw_directions = [&](PCG32 &lr, Vec3 &wo) {
+    }
+    /// ωo jittered in its bin; every ωi bin on one shifted copy of the grid (fills `wi`).
+    void draw_directions(PCG32 &lr, Vec3 &wo) {
         wo = square_to_hemisphere(Vec2((float(box) + lr.next_float()) / float(N), (float(boy) + lr.next_float()) / float(N)));
         const float sa = lr.next_float(), sb = lr.next_float();
         for (int b = 0; b < B; ++b)
             wi[size_t(b)] = square_to_hemisphere(Vec2((float(b % N) + sa) / float(N), (float(b / N) + sb) / float(N)));
-    };
-    auto accumulate = [&](std::vector<double> &sum, std::vector<double> &sq, const std::vector<double> &line) {
+    }
+    /// One line's terms into this task's sums and sums of squares.
+    void accumulate(std::vector<double> &sum, std::vector<double> &sq, const std::vector<double> &line) {
         for (size_t k = 0; k < size_t(B) * 3; ++k) {
             const double x = line[k];
             sum[base_idx + k] += x;
             sq[base_idx + k] += x * x;
         }
-    };
-    // Shoots one line of sight on field `hf` over patch R; returns the first vertex or false.
-    auto shoot = [&](PCG32 &lr, const Heightfield &hf, const PatchRegion &R, Vec3 wo, int k, int K, bool macro,
-                     Vertex &v, size_t &rejected, size_t &leaked) -> bool {
+    }
+    /// Patch P of this task in a field's cell space.
+    PatchRegion patch_of(const Heightfield &hf) const {
+        const double cw = double(hf.width()) / M, ch = double(hf.height()) / M;
+        return PatchRegion{pa * cw, pb * ch, (pa + 1) * cw, (pb + 1) * ch};
+    }
+    /// Shoots line k of K (stratified when K is a perfect square) on field `hf` over patch R;
+    /// the first vertex, or false (counted as leaked or rejected).
+    bool shoot(PCG32 &lr, const Heightfield &hf, const PatchRegion &R, Vec3 wo, int k, int K, bool macro, Vertex &v) {
         const ShootingRegion Q = shooting_region(hf, R, wo);
         const int g = perfect_square_root(K);
         double sx, sy;
@@ -139,146 +157,170 @@ void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
         }
         v = make_vertex(hf, hit, ox, oy, macro);
         return true;
-    };
-
-    size_t orig_lines = 0, low_lines = 0, vertices = 0, rejected = 0, leaked = 0;
-    uint32_t acc_orig = 0, acc_low = 0;
-    // Patch P of this task in a field's cell space.
-    auto patch_of = [&](const Heightfield &hf) {
-        const double cw = double(hf.width()) / M, ch = double(hf.height()) / M;
-        return PatchRegion{pa * cw, pb * ch, (pa + 1) * cw, (pb + 1) * ch};
-    };
-    // Line k of K on field hf: its directions (same on both fields) and first vertex in P.
-    auto start_line = [&](const Heightfield &hf, const PatchRegion &R, int k, int K, bool macro, Vec3 &wo,
-                          Vertex &v, size_t &lines) {
+    }
+    /// Line k of K on field hf: its directions (same on both fields) and first vertex in P.
+    bool start_line(const Heightfield &hf, const PatchRegion &R, int k, int K, bool macro, Vec3 &wo, Vertex &v,
+                    size_t &lines) {
         PCG32 lr = line_rng(k);
         draw_directions(lr, wo);
         ++lines;
-        return shoot(lr, hf, R, wo, k, K, macro, v, rejected, leaked);
-    };
+        return shoot(lr, hf, R, wo, k, K, macro, v);
+    }
+
     // --- the original microgeometry: paths, next-event towards every ωi bin -----------------
-    const auto t0 = Clock::now();
-    {
-        const PatchRegion R = patch_of(m_orig);
-        const int K = m_opt.orig_paths;
+    /// Next-event terms of vertex v (seen from local lwo) towards every ωi bin: eq. 6's
+    /// integrand at the first vertex (buf.a), eq. 17's at every vertex (buf.b).
+    void splat_original_vertex(const Vertex &v, Vec3 lwo, const Spectrum &throughput, int depth) {
+        const Frame &fr = v.ctx.frame;
+        const Vec3 org = spawn_origin(v);
+        for (int b = 0; b < B; ++b) {
+            const Vec3 lwi = fr.to_local(wi[size_t(b)]);
+            if (!(lwi.z > 0.f)) continue;
+            const Spectrum f = est.m_base.eval(v.ctx, lwo, lwi);
+            if (f.is_black()) continue;
+            if (!unoccluded_by_slope(wi[size_t(b)], est.m_slope_orig) &&
+                est.m_orig.occluded(org, wi[size_t(b)], 0.f, Infinity, v.ox, v.oy))
+                continue;
+            const Spectrum c = throughput * f;
+            double *pir = &buf.b[size_t(b) * 3];
+            for (int q = 0; q < 3; ++q) pir[q] += c[q];
+            if (depth == 1) {
+                double *p1 = &buf.a[size_t(b) * 3];
+                for (int q = 0; q < 3; ++q) p1[q] += c[q];
+            }
+        }
+    }
+    /// The path's next vertex: samples the base, Russian roulette, traces; false when it ends.
+    bool continue_path(Vertex &v, Vec3 &w_out, Spectrum &throughput, Vec3 lwo, int depth) {
+        const Frame &fr = v.ctx.frame;
+        const float u_lobe = rng.next_float(), u0 = rng.next_float(), u1 = rng.next_float();
+        BSDFSample bs;
+        if (!est.m_base.sample(v.ctx, lwo, u_lobe, Vec2(u0, u1), bs) || bs.weight.is_black() || !(bs.wi.z > 0.f))
+            return false;
+        throughput *= bs.weight;
+        if (est.m_opt.roulette_start > 0 && depth >= est.m_opt.roulette_start) {
+            const float q = std::min(1.f, throughput.max());
+            if (!(rng.next_float() < q)) return false;
+            throughput *= 1.f / q;
+        }
+        const Vec3 dir = normalize(fr.to_world(bs.wi));
+        HeightfieldHit next;
+        if (!est.m_orig.intersect(spawn_origin(v), dir, 0.f, Infinity, next, v.ox, v.oy)) return false;
+        v = make_vertex(est.m_orig, next, v.ox, v.oy);
+        w_out = -dir;
+        return true;
+    }
+    /// orig_paths lines of sight on G_orig, each with its path (eq. 15-17): the numerators.
+    void trace_original() {
+        const bool ir = est.m_opt.interreflections;
+        const int max_vertices = ir ? est.m_opt.max_bounces : 1;
+        const PatchRegion R = patch_of(est.m_orig);
+        const int K = est.m_opt.orig_paths;
         for (int k = 0; k < K; ++k) {
             Vec3 wo;
             Vertex v;
-            if (!start_line(m_orig, R, k, K, false, wo, v, orig_lines)) continue;
+            if (!start_line(est.m_orig, R, k, K, false, wo, v, orig_lines)) continue;
             ++acc_orig;
             buf.clear();
             Spectrum throughput(1.f);
             Vec3 w_out = wo;
             for (int depth = 1;; ++depth) {
                 ++vertices;
-                const Frame &fr = v.ctx.frame;
-                const Vec3 lwo = fr.to_local(w_out);
+                const Vec3 lwo = v.ctx.frame.to_local(w_out);
                 if (!(lwo.z > 0.f)) break;
-                const Vec3 org = spawn_origin(v);
-                for (int b = 0; b < B; ++b) {
-                    const Vec3 lwi = fr.to_local(wi[size_t(b)]);
-                    if (!(lwi.z > 0.f)) continue;
-                    const Spectrum f = m_base.eval(v.ctx, lwo, lwi);
-                    if (f.is_black()) continue;
-                    if (!unoccluded_by_slope(wi[size_t(b)], m_slope_orig) &&
-                        m_orig.occluded(org, wi[size_t(b)], 0.f, Infinity, v.ox, v.oy))
-                        continue;
-                    const Spectrum c = throughput * f;
-                    double *pir = &buf.b[size_t(b) * 3];
-                    for (int q = 0; q < 3; ++q) pir[q] += c[q];
-                    if (depth == 1) {
-                        double *p1 = &buf.a[size_t(b) * 3];
-                        for (int q = 0; q < 3; ++q) p1[q] += c[q];
-                    }
-                }
+                splat_original_vertex(v, lwo, throughput, depth);
                 if (depth >= max_vertices) break;
-                const float u_lobe = rng.next_float(), u0 = rng.next_float(), u1 = rng.next_float();
-                BSDFSample bs;
-                if (!m_base.sample(v.ctx, lwo, u_lobe, Vec2(u0, u1), bs) || bs.weight.is_black() || !(bs.wi.z > 0.f))
-                    break;
-                throughput *= bs.weight;
-                if (m_opt.roulette_start > 0 && depth >= m_opt.roulette_start) {
-                    const float q = std::min(1.f, throughput.max());
-                    if (!(rng.next_float() < q)) break;
-                    throughput *= 1.f / q;
-                }
-                const Vec3 dir = normalize(fr.to_world(bs.wi));
-                HeightfieldHit next;
-                if (!m_orig.intersect(spawn_origin(v), dir, 0.f, Infinity, next, v.ox, v.oy)) break;
-                v = make_vertex(m_orig, next, v.ox, v.oy);
-                w_out = -dir;
+                if (!continue_path(v, w_out, throughput, lwo, depth)) break;
             }
-            accumulate(m_n1, m_n1sq, buf.a);
-            if (ir) accumulate(m_nir, m_nirsq, buf.b);
+            accumulate(est.m_n1, est.m_n1sq, buf.a);
+            if (ir) accumulate(est.m_nir, est.m_nirsq, buf.b);
         }
     }
-    const double t_orig = seconds_since(t0);
+
     // --- the downsampled model: one bounce, f'_low in the macro frame -----------------------
-    const auto t1 = Clock::now();
-    {
-        const PatchRegion R = patch_of(m_low);
-        const int K = m_opt.low_paths;
+    /// f'_low = Σ_k c_k base(F_k ωo, F_k ωi) (eq. 11) as an expectation over nodes: J nodes
+    /// stratified in the CDF of c_k over the nodes that face ωo (the others add 0); into `fl`.
+    void sample_f_low_nodes(const MultiLobeBrdf &fl_patch, const ShadingContext &ctx, Vec3 wo, int J) {
+        const Material &base_low = est.m_low_mat.base();
+        const auto &nodes = fl_patch.nodes();
+        vis.clear();
+        vw.clear();
+        double total = 0;
+        for (size_t q = 0; q < nodes.size(); ++q)
+            if (const double w = fl_patch.node_weight(nodes[q], wo); w > 0) vis.push_back(q), vw.push_back(w), total += w;
+        std::fill(fl.begin(), fl.end(), Spectrum(0.f));
+        if (!(total > 0)) return;
+        const double xi = rng.next_double();
+        size_t q = 0;
+        double cum = 0;
+        for (int j = 0; j < J; ++j) {
+            const double target = (double(j) + xi) / J * total;
+            while (q + 1 < vis.size() && cum + vw[q] <= target) cum += vw[q], ++q;
+            const Frame &F = nodes[vis[q]].frame;
+            const Vec3 lo = F.to_local(wo);
+            const float scale = float(total / J);
+            for (int b = 0; b < B; ++b) {
+                const Vec3 li = F.to_local(wi[size_t(b)]);
+                if (!(li.z > 0.f) || !(wi[size_t(b)].z > 0.f)) continue;
+                fl[size_t(b)] += base_low.eval(ctx, lo, li) * scale;
+            }
+        }
+    }
+    /// low_paths lines of sight on G_low with f'_low, single bounce (eq. 20): the denominators.
+    void trace_low() {
+        const int J = est.m_opt.low_nodes;
+        const PatchRegion R = patch_of(est.m_low);
+        const int K = est.m_opt.low_paths;
         for (int k = 0; k < K; ++k) {
             Vec3 wo;
             Vertex v;
-            if (!start_line(m_low, R, k, K, true, wo, v, low_lines)) continue;
+            if (!start_line(est.m_low, R, k, K, true, wo, v, low_lines)) continue;
             ++acc_low;
             buf.clear();
             const Vec3 org = spawn_origin(v);
-            const MultiLobeBrdf &fl_patch = m_low_mat.patch(v.ctx.uv);
-            if (J == 0) {
+            const MultiLobeBrdf &fl_patch = est.m_low_mat.patch(v.ctx.uv);
+            if (J == 0)
                 fl_patch.eval_batch(v.ctx, wo, wi.data(), B, fl.data());
-            } else {
-                // f'_low = Σ_k c_k base(F_k ωo, F_k ωi) as an expectation over nodes: J nodes
-                // stratified in the CDF of c_k over the nodes that face ωo (the others add 0).
-                const auto &nodes = fl_patch.nodes();
-                vis.clear();
-                vw.clear();
-                double total = 0;
-                for (size_t q = 0; q < nodes.size(); ++q)
-                    if (const double w = fl_patch.node_weight(nodes[q], wo); w > 0) vis.push_back(q), vw.push_back(w), total += w;
-                std::fill(fl.begin(), fl.end(), Spectrum(0.f));
-                if (total > 0) {
-                    const double xi = rng.next_double();
-                    size_t q = 0;
-                    double cum = 0;
-                    for (int j = 0; j < J; ++j) {
-                        const double target = (double(j) + xi) / J * total;
-                        while (q + 1 < vis.size() && cum + vw[q] <= target) cum += vw[q], ++q;
-                        const Frame &F = nodes[vis[q]].frame;
-                        const Vec3 lo = F.to_local(wo);
-                        const float scale = float(total / J);
-                        for (int b = 0; b < B; ++b) {
-                            const Vec3 li = F.to_local(wi[size_t(b)]);
-                            if (!(li.z > 0.f) || !(wi[size_t(b)].z > 0.f)) continue;
-                            fl[size_t(b)] += base_low.eval(v.ctx, lo, li) * scale;
-                        }
-                    }
-                }
-            }
+            else
+                sample_f_low_nodes(fl_patch, v.ctx, wo, J);
             for (int b = 0; b < B; ++b) {
                 const Vec3 &w = wi[size_t(b)];
                 const Spectrum &f = fl[size_t(b)];
                 if (f.is_black() || !(dot(v.n, w) > 0.f)) continue;  // below the h_low facet: self-shadowed
-                if (!unoccluded_by_slope(w, m_slope_low) && m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy)) continue;
+                if (!unoccluded_by_slope(w, est.m_slope_low) && est.m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy))
+                    continue;
                 double *p = &buf.a[size_t(b) * 3];
                 for (int q = 0; q < 3; ++q) p[q] += f[q];
             }
-            accumulate(m_d, m_dsq, buf.a);
+            accumulate(est.m_d, est.m_dsq, buf.a);
         }
     }
+    /// The task's line counts and the shared counters (under a lock: tasks run in parallel).
+    void commit(double t_orig, double t_low) {
+        est.m_count_orig[task] += acc_orig;
+        est.m_count_low[task] += acc_low;
+        static std::mutex mu;
+        std::lock_guard<std::mutex> lock(mu);
+        ScalingStats &st = est.m_stats;
+        st.orig_lines += orig_lines;
+        st.low_lines += low_lines;
+        st.orig_vertices += vertices;
+        st.rejected += rejected;
+        st.leaked += leaked;
+        st.core_seconds_orig += t_orig;
+        st.core_seconds_low += t_low;
+    }
+};
+
+void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
+    Task t(*this, task, round_seed);
+    const auto t0 = Clock::now();
+    t.trace_original();
+    const double t_orig = seconds_since(t0);
+    const auto t1 = Clock::now();
+    t.trace_low();
     const double t_low = seconds_since(t1);
-    m_count_orig[task] += acc_orig;
-    m_count_low[task] += acc_low;
-    static std::mutex mu;
-    std::lock_guard<std::mutex> lock(mu);
-    m_stats.orig_lines += orig_lines;
-    m_stats.low_lines += low_lines;
-    m_stats.orig_vertices += vertices;
-    m_stats.rejected += rejected;
-    m_stats.leaked += leaked;
-    m_stats.core_seconds_orig += t_orig;
-    m_stats.core_seconds_low += t_low;
+    t.commit(t_orig, t_low);
 }
 
 void ScalingEstimator::add_round() {
@@ -358,188 +400,255 @@ double ScalingEstimator::R(int patch, int bi, int bo, int ch, bool ir) const {
     return (num + eps) / (den + eps);
 }
 
+namespace {
+
+/// Per (patch P, bin pair j = bo B + bi, channel): the sample means of eq. 12's numerator
+/// (the original's f_eff·cos θi, integrated over the two bins) and denominator (the same on
+/// h_low with f'_low), and the variances of those means.
+struct BinPairMoments {
+    size_t BB = 0;  ///< angular bin pairs (bo, bi), index bo B + bi
+    std::vector<double> num, den, vnum, vden;
+    size_t at(int p, size_t j, int c) const { return (size_t(p) * BB + j) * 3 + c; }
+};
+
+/// The sums of one table set (numerator `sum`/`sq`, denominator `dsum`/`dsq`) as means and
+/// variances of the means; a single line counts its square as its variance.
+BinPairMoments bin_pair_moments(const std::vector<double> &sum, const std::vector<double> &sq,
+                                const std::vector<double> &dsum, const std::vector<double> &dsq,
+                                const std::vector<uint32_t> &count_orig, const std::vector<uint32_t> &count_low, int P,
+                                int B) {
+    BinPairMoments m;
+    m.BB = size_t(B) * B;
+    const size_t n_all = size_t(P) * m.BB * 3;
+    m.num.resize(n_all), m.den.resize(n_all), m.vnum.resize(n_all), m.vden.resize(n_all);
+    tbb::parallel_for(size_t(0), size_t(P) * B, [&](size_t t) {
+        const double no = count_orig[t], nl = count_low[t];
+        for (size_t k = t * B * 3; k < (t + 1) * B * 3; ++k) {
+            double a = 0, va = 0, d = 0, vd = 0;
+            if (no > 0) {
+                a = sum[k] / no;
+                va = no > 1 ? std::max(0.0, (sq[k] - no * a * a) / (no - 1)) / no : a * a;
+            }
+            if (nl > 0) {
+                d = dsum[k] / nl;
+                vd = nl > 1 ? std::max(0.0, (dsq[k] - nl * d * d) / (nl - 1)) / nl : d * d;
+            }
+            m.num[k] = a, m.vnum[k] = va, m.den[k] = d, m.vden[k] = vd;
+        }
+    });
+    return m;
+}
+
+/// T (P x 3, mean 1 per channel) and S (BB x 3) of one table set, and per channel the
+/// regularisation they were made with (the rank-1 check regularises R~ the same way).
+struct Rank1Factors {
+    std::vector<double> T, S;
+    // Raw (before T's normalisation to mean 1) global ratio, cap and ε per channel.
+    double S_global[3] = {1, 1, 1}, S_cap[3] = {0, 0, 0}, eps_bin[3] = {0, 0, 0}, T_mean[3] = {1, 1, 1};
+};
+
+/// Rank-1 factorisation of channel c by marginal matching (iterative proportional fitting):
+///   S_b = Σ_P num_Pb / Σ_P T_P den_Pb,   T_P = Σ_b num_Pb / Σ_b S_b den_Pb,
+/// so that T S f'_low reproduces the original's reflected energy in every bin pair (summed
+/// over patches) and in every patch (summed over bin pairs). For an exactly rank-1 R it
+/// returns R's factors; eq. 22-24 (means of per-bin ratios) are the same in that case but
+/// divide by every noisy, near-empty denominator (see scaling.h).
+void fit_rank1_channel(const BinPairMoments &m, int P, int c, double epsilon, Rank1Factors &f) {
+    const size_t BB = m.BB;
+    std::vector<double> &T = f.T, &S = f.S;
+    double dtot = 0, ntot = 0;
+    for (int p = 0; p < P; ++p)
+        for (size_t j = 0; j < BB; ++j) dtot += m.den[m.at(p, j, c)], ntot += m.num[m.at(p, j, c)];
+    // Regularisation (the ε of eq. 12, relative): a bin pair whose denominator is small
+    // against eps_b is pulled towards the global ratio S_g = Σ num / Σ den, and S is
+    // capped at the largest value of the bins whose denominator is reliable (≥ 10% of
+    // the mean): where f'_low reflects (almost) nothing, S cannot restore the
+    // original's light anyway, and an unbounded ratio would leak into the neighbouring
+    // bins through the interpolation (e.g. grazing ωo where eq. 5 culls a facet family).
+    const double S_g = dtot > 0 && ntot > 0 ? ntot / dtot : 1.0;
+    const double eps_b = epsilon * dtot / double(BB);  // per bin pair, summed over patches
+    // A patch sums over every bin pair: its total is never near zero unless the patch is
+    // black; ε there only guards the division (a relative ε would bias T towards 1).
+    const double eps_p = 1e-9 * dtot / double(P) + 1e-300;
+    f.S_global[c] = S_g, f.eps_bin[c] = eps_b;
+    for (int it = 0; it < 30; ++it) {
+        double cap = 0;
+        for (size_t j = 0; j < BB; ++j) {
+            double a = 0, d = 0;
+            for (int p = 0; p < P; ++p) a += m.num[m.at(p, j, c)], d += T[size_t(p) * 3 + c] * m.den[m.at(p, j, c)];
+            S[j * 3 + c] = (a + eps_b * S_g) / (d + eps_b);
+            if (d >= 0.1 * dtot / double(BB)) cap = std::max(cap, S[j * 3 + c]);
+        }
+        if (cap > 0)
+            for (size_t j = 0; j < BB; ++j) S[j * 3 + c] = std::min(S[j * 3 + c], cap);
+        f.S_cap[c] = cap;
+        double change = 0;
+        for (int p = 0; p < P; ++p) {
+            double a = 0, d = 0;
+            for (size_t j = 0; j < BB; ++j) a += m.num[m.at(p, j, c)], d += S[j * 3 + c] * m.den[m.at(p, j, c)];
+            const double t = (a + eps_p) / (d + eps_p);
+            change = std::max(change, std::abs(t / T[size_t(p) * 3 + c] - 1.0));
+            T[size_t(p) * 3 + c] = t;
+        }
+        if (change < 1e-7) break;
+    }
+    double mean = 0;
+    for (int p = 0; p < P; ++p) mean += T[size_t(p) * 3 + c] / P;
+    if (mean > 0) {
+        for (int p = 0; p < P; ++p) T[size_t(p) * 3 + c] /= mean;
+        for (size_t j = 0; j < BB; ++j) S[j * 3 + c] *= mean;
+        f.T_mean[c] = mean;
+    }
+}
+
+/// T and S into the tables (M x M and N² x N² images, model.h's layout).
+void write_tables(const Rank1Factors &f, int M, int N, ScalingTables &tab) {
+    const int B = N * N, P = M * M;
+    tab.M = M, tab.N = N;
+    tab.T = Image(M, M, 3);
+    tab.S = Image(N * N, N * N, 3);
+    for (int p = 0; p < P; ++p)
+        for (int c = 0; c < 3; ++c) tab.T.at(p % M, p / M, c) = float(f.T[size_t(p) * 3 + c]);
+    for (size_t j = 0; j < size_t(B) * B; ++j) {
+        const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
+        tab.set_S_bin(bi, bo, Spectrum(float(f.S[j * 3]), float(f.S[j * 3 + 1]), float(f.S[j * 3 + 2])));
+    }
+}
+
+/// What one table set reached: ScalingStats' fields for `single` or `ir`.
+struct TableStats {
+    double med = 0, p90 = 0, mx = 0, med_outer = 0, med_paper = 0, t_max = 0, energy = 0, svd_err = 0, ts_err = 0,
+           paper_err = 0;
+    std::vector<double> sv;
+};
+
+/// Relative standard errors of S and T (green; delta method, numerator and denominator
+/// independent, T or S fixed), and of S at the paper's counts (2500 paths per effective BRDF).
+void standard_errors(const BinPairMoments &m, const Rank1Factors &f, const std::vector<uint32_t> &count_orig,
+                     const std::vector<uint32_t> &count_low, int P, int N, TableStats &o) {
+    const int B = N * N;
+    const size_t BB = m.BB;
+    std::vector<double> s_rel, s_rel_outer, s_rel_paper;
+    auto outer = [&](int b) { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; };
+    for (size_t j = 0; j < BB; ++j) {
+        const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
+        double a = 0, va = 0, d = 0, vd = 0, va_p = 0, vd_p = 0;
+        for (int p = 0; p < P; ++p) {
+            const double t = f.T[size_t(p) * 3 + 1];
+            const size_t task = size_t(p) * B + size_t(bo);
+            a += m.num[m.at(p, j, 1)], va += m.vnum[m.at(p, j, 1)];
+            d += t * m.den[m.at(p, j, 1)], vd += t * t * m.vden[m.at(p, j, 1)];
+            // The paper's counts: 2500 paths per effective BRDF (our per-line variance).
+            va_p += m.vnum[m.at(p, j, 1)] * count_orig[task] / 2500.0;
+            vd_p += t * t * m.vden[m.at(p, j, 1)] * count_low[task] / 2500.0;
+        }
+        if (a > 0 && d > 0) {
+            const double rel = std::sqrt(va / (a * a) + vd / (d * d));
+            s_rel_paper.push_back(std::sqrt(va_p / (a * a) + vd_p / (d * d)));
+            s_rel.push_back(rel);
+            if (outer(bi) && outer(bo)) s_rel_outer.push_back(rel);
+        }
+    }
+    o.med = median_of(s_rel);
+    o.p90 = quantile_of(s_rel, 0.9);
+    o.mx = s_rel.empty() ? 0.0 : *std::max_element(s_rel.begin(), s_rel.end());
+    o.med_outer = median_of(s_rel_outer);
+    o.med_paper = median_of(s_rel_paper);
+    o.t_max = 0;
+    for (int p = 0; p < P; ++p) {
+        double a = 0, va = 0, d = 0, vd = 0;
+        for (size_t j = 0; j < BB; ++j) {
+            const double sj = f.S[j * 3 + 1];
+            a += m.num[m.at(p, j, 1)], va += m.vnum[m.at(p, j, 1)];
+            d += sj * m.den[m.at(p, j, 1)], vd += sj * sj * m.vden[m.at(p, j, 1)];
+        }
+        if (a > 0 && d > 0) o.t_max = std::max(o.t_max, std::sqrt(va / (a * a) + vd / (d * d)));
+    }
+}
+
+/// The bin pairs whose centres are both at θ <= 75° (paper 004 excludes the others from its
+/// rank-1 figures); all pairs when there is none.
+std::vector<size_t> rank1_check_columns(int N) {
+    const int B = N * N;
+    const size_t BB = size_t(B) * B;
+    std::vector<size_t> cols;
+    for (size_t j = 0; j < BB; ++j) {
+        const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
+        auto theta_ok = [&](int b) {
+            const Vec3 w = square_to_hemisphere(Vec2((b % N + 0.5f) / N, (b / N + 0.5f) / N));
+            return w.z >= std::cos(75.0 * Pi / 180.0) - 1e-6;
+        };
+        if (theta_ok(bo) && theta_ok(bi)) cols.push_back(j);
+    }
+    if (cols.empty())
+        for (size_t j = 0; j < BB; ++j) cols.push_back(j);
+    return cols;
+}
+
+/// Rank-1 check (green), as paper 004 Fig. 6: the sampled R~ per patch and bin pair,
+/// regularised as S is (pulled towards S_g by eps_b / P, capped at S's cap), over
+/// rank1_check_columns (for this diagnostic only); its SVD against this factorisation and
+/// eq. 22-24's.
+void rank1_check(const BinPairMoments &m, const Rank1Factors &f, int P, int N, TableStats &o) {
+    const std::vector<size_t> cols = rank1_check_columns(N);
+    Eigen::MatrixXd A(P, Eigen::Index(cols.size()));
+    for (size_t c = 0; c < cols.size(); ++c) {
+        const size_t j = cols[c];
+        const double e = f.eps_bin[1] / P;
+        for (int p = 0; p < P; ++p) {
+            double r = (m.num[m.at(p, j, 1)] + e * f.S_global[1]) / (m.den[m.at(p, j, 1)] + e);
+            if (f.S_cap[1] > 0) r = std::min(r, f.S_cap[1] * f.T[size_t(p) * 3 + 1] * f.T_mean[1]);
+            A(p, Eigen::Index(c)) = r;
+        }
+    }
+    // σk² = the eigenvalues of A Aᵀ (P x P: small).
+    const Eigen::MatrixXd G = A * A.transpose();
+    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(G);
+    std::vector<double> lam;
+    for (int p = 0; p < P; ++p) lam.push_back(std::max(0.0, es.eigenvalues()(p)));
+    std::sort(lam.rbegin(), lam.rend());
+    double tot = 0;
+    for (double l : lam) tot += l;
+    o.sv.clear();
+    for (double l : lam) o.sv.push_back(std::sqrt(l));
+    o.energy = tot > 0 ? lam[0] / tot : 1.0;
+    o.svd_err = tot > 0 ? std::sqrt(std::max(0.0, 1.0 - lam[0] / tot)) : 0.0;
+    // Eq. 22-24 on the same R~: S' = mean over patches, T' = mean over bins / its mean.
+    const size_t C = cols.size();
+    std::vector<double> Sp(C, 0.0), Tp(size_t(P), 0.0);
+    for (int p = 0; p < P; ++p)
+        for (size_t c = 0; c < C; ++c) Sp[c] += A(p, Eigen::Index(c)) / P, Tp[size_t(p)] += A(p, Eigen::Index(c)) / double(C);
+    double tm = 0;
+    for (double t : Tp) tm += t / P;
+    double e_ts = 0, e_paper = 0;
+    for (int p = 0; p < P; ++p)
+        for (size_t c = 0; c < C; ++c) {
+            const double r = A(p, Eigen::Index(c));
+            const double a = r - f.T[size_t(p) * 3 + 1] * f.S[cols[c] * 3 + 1], b = r - Tp[size_t(p)] / tm * Sp[c];
+            e_ts += a * a, e_paper += b * b;
+        }
+    o.ts_err = tot > 0 ? std::sqrt(e_ts / tot) : 0.0;
+    o.paper_err = tot > 0 ? std::sqrt(e_paper / tot) : 0.0;
+}
+
+}  // namespace
+
 void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, ScalingStats &stats) const {
     const int M = m_opt.M, N = m_opt.N, B = m_bins, P = M * M;
-    const size_t BB = size_t(B) * B;  // angular bin pairs (bo, bi), index bo B + bi
     stats = m_stats;
-
-    struct Out {
-        double med = 0, p90 = 0, mx = 0, med_outer = 0, med_paper = 0, t_max = 0, energy = 0, svd_err = 0, ts_err = 0,
-               paper_err = 0;
-        std::vector<double> sv;
+    // One table set: moments, rank-1 factors, tables, then the diagnostics of the fit.
+    auto build = [&](bool use_ir, ScalingTables &tab, TableStats &o) {
+        const BinPairMoments m = bin_pair_moments(use_ir ? m_nir : m_n1, use_ir ? m_nirsq : m_n1sq, m_d, m_dsq,
+                                                  m_count_orig, m_count_low, P, B);
+        Rank1Factors f;
+        f.T.assign(size_t(P) * 3, 1.0);
+        f.S.assign(m.BB * 3, 1.0);
+        for (int c = 0; c < 3; ++c) fit_rank1_channel(m, P, c, m_opt.epsilon, f);
+        write_tables(f, M, N, tab);
+        standard_errors(m, f, m_count_orig, m_count_low, P, N, o);
+        rank1_check(m, f, P, N, o);
     };
-    auto build = [&](bool use_ir, ScalingTables &tab, Out &o) {
-        const std::vector<double> &sum = use_ir ? m_nir : m_n1, &sq = use_ir ? m_nirsq : m_n1sq;
-        // Per (patch, bin pair, channel): numerator and denominator means and their variances.
-        const size_t n_all = size_t(P) * BB * 3;
-        std::vector<double> num(n_all), den(n_all), vnum(n_all), vden(n_all);
-        tbb::parallel_for(size_t(0), size_t(P) * B, [&](size_t t) {
-            const double no = m_count_orig[t], nl = m_count_low[t];
-            for (size_t k = t * B * 3; k < (t + 1) * B * 3; ++k) {
-                double a = 0, va = 0, d = 0, vd = 0;
-                if (no > 0) {
-                    a = sum[k] / no;
-                    va = no > 1 ? std::max(0.0, (sq[k] - no * a * a) / (no - 1)) / no : a * a;
-                }
-                if (nl > 0) {
-                    d = m_d[k] / nl;
-                    vd = nl > 1 ? std::max(0.0, (m_dsq[k] - nl * d * d) / (nl - 1)) / nl : d * d;
-                }
-                num[k] = a, vnum[k] = va, den[k] = d, vden[k] = vd;
-            }
-        });
-        auto at = [&](int p, size_t j, int c) { return (size_t(p) * BB + j) * 3 + c; };
-        // Rank-1 factorisation by marginal matching (iterative proportional fitting):
-        //   S_b = Σ_P num_Pb / Σ_P T_P den_Pb,   T_P = Σ_b num_Pb / Σ_b S_b den_Pb,
-        // so that T S f'_low reproduces the original's reflected energy in every bin pair
-        // (summed over patches) and in every patch (summed over bin pairs). For an exactly
-        // rank-1 R it returns R's factors; eq. 22-24 (means of per-bin ratios) are the same
-        // in that case but divide by every noisy, near-empty denominator (see scaling.h).
-        tab.M = M, tab.N = N;
-        tab.T = Image(M, M, 3);
-        tab.S = Image(N * N, N * N, 3);
-        std::vector<double> T(size_t(P) * 3, 1.0), S(BB * 3, 1.0);
-        // Raw (before T's normalisation to mean 1) global ratio, cap and ε per channel.
-        double S_global[3] = {1, 1, 1}, S_cap[3] = {0, 0, 0}, eps_bin[3] = {0, 0, 0}, T_mean[3] = {1, 1, 1};
-        for (int c = 0; c < 3; ++c) {
-            double dtot = 0, ntot = 0;
-            for (int p = 0; p < P; ++p)
-                for (size_t j = 0; j < BB; ++j) dtot += den[at(p, j, c)], ntot += num[at(p, j, c)];
-            // Regularisation (the ε of eq. 12, relative): a bin pair whose denominator is small
-            // against eps_b is pulled towards the global ratio S_g = Σ num / Σ den, and S is
-            // capped at the largest value of the bins whose denominator is reliable (≥ 10% of
-            // the mean): where f'_low reflects (almost) nothing, S cannot restore the
-            // original's light anyway, and an unbounded ratio would leak into the neighbouring
-            // bins through the interpolation (e.g. grazing ωo where eq. 5 culls a facet family).
-            const double S_g = dtot > 0 && ntot > 0 ? ntot / dtot : 1.0;
-            const double eps_b = m_opt.epsilon * dtot / double(BB);  // per bin pair, summed over patches
-            // A patch sums over every bin pair: its total is never near zero unless the patch is
-            // black; ε there only guards the division (a relative ε would bias T towards 1).
-            const double eps_p = 1e-9 * dtot / double(P) + 1e-300;
-            S_global[c] = S_g, eps_bin[c] = eps_b;
-            for (int it = 0; it < 30; ++it) {
-                double cap = 0;
-                for (size_t j = 0; j < BB; ++j) {
-                    double a = 0, d = 0;
-                    for (int p = 0; p < P; ++p) a += num[at(p, j, c)], d += T[size_t(p) * 3 + c] * den[at(p, j, c)];
-                    S[j * 3 + c] = (a + eps_b * S_g) / (d + eps_b);
-                    if (d >= 0.1 * dtot / double(BB)) cap = std::max(cap, S[j * 3 + c]);
-                }
-                if (cap > 0)
-                    for (size_t j = 0; j < BB; ++j) S[j * 3 + c] = std::min(S[j * 3 + c], cap);
-                S_cap[c] = cap;
-                double change = 0;
-                for (int p = 0; p < P; ++p) {
-                    double a = 0, d = 0;
-                    for (size_t j = 0; j < BB; ++j) a += num[at(p, j, c)], d += S[j * 3 + c] * den[at(p, j, c)];
-                    const double t = (a + eps_p) / (d + eps_p);
-                    change = std::max(change, std::abs(t / T[size_t(p) * 3 + c] - 1.0));
-                    T[size_t(p) * 3 + c] = t;
-                }
-                if (change < 1e-7) break;
-            }
-            double mean = 0;
-            for (int p = 0; p < P; ++p) mean += T[size_t(p) * 3 + c] / P;
-            if (mean > 0) {
-                for (int p = 0; p < P; ++p) T[size_t(p) * 3 + c] /= mean;
-                for (size_t j = 0; j < BB; ++j) S[j * 3 + c] *= mean;
-                T_mean[c] = mean;
-            }
-        }
-        for (int p = 0; p < P; ++p)
-            for (int c = 0; c < 3; ++c) tab.T.at(p % M, p / M, c) = float(T[size_t(p) * 3 + c]);
-        // Standard errors (delta method; numerator and denominator independent, T or S fixed).
-        std::vector<double> s_rel, s_rel_outer, s_rel_paper;
-        auto outer = [&](int b) { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; };
-        for (size_t j = 0; j < BB; ++j) {
-            const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
-            tab.set_S_bin(bi, bo, Spectrum(float(S[j * 3]), float(S[j * 3 + 1]), float(S[j * 3 + 2])));
-            double a = 0, va = 0, d = 0, vd = 0, va_p = 0, vd_p = 0;
-            for (int p = 0; p < P; ++p) {
-                const double t = T[size_t(p) * 3 + 1];
-                const size_t task = size_t(p) * B + size_t(bo);
-                a += num[at(p, j, 1)], va += vnum[at(p, j, 1)];
-                d += t * den[at(p, j, 1)], vd += t * t * vden[at(p, j, 1)];
-                // The paper's counts: 2500 paths per effective BRDF (our per-line variance).
-                va_p += vnum[at(p, j, 1)] * m_count_orig[task] / 2500.0;
-                vd_p += t * t * vden[at(p, j, 1)] * m_count_low[task] / 2500.0;
-            }
-            if (a > 0 && d > 0) {
-                const double rel = std::sqrt(va / (a * a) + vd / (d * d));
-                s_rel_paper.push_back(std::sqrt(va_p / (a * a) + vd_p / (d * d)));
-                s_rel.push_back(rel);
-                if (outer(bi) && outer(bo)) s_rel_outer.push_back(rel);
-            }
-        }
-        o.med = median_of(s_rel);
-        o.p90 = quantile_of(s_rel, 0.9);
-        o.mx = s_rel.empty() ? 0.0 : *std::max_element(s_rel.begin(), s_rel.end());
-        o.med_outer = median_of(s_rel_outer);
-        o.med_paper = median_of(s_rel_paper);
-        o.t_max = 0;
-        for (int p = 0; p < P; ++p) {
-            double a = 0, va = 0, d = 0, vd = 0;
-            for (size_t j = 0; j < BB; ++j) {
-                const double sj = S[j * 3 + 1];
-                a += num[at(p, j, 1)], va += vnum[at(p, j, 1)];
-                d += sj * den[at(p, j, 1)], vd += sj * sj * vden[at(p, j, 1)];
-            }
-            if (a > 0 && d > 0) o.t_max = std::max(o.t_max, std::sqrt(va / (a * a) + vd / (d * d)));
-        }
-        // Rank-1 check (green), as paper 004 Fig. 6: the sampled R~ per patch and bin pair,
-        // regularised as S is (pulled towards S_g by eps_b / P, capped at S's cap), over the bin
-        // pairs whose centres are both at θ <= 75° (the paper's exclusion, for this diagnostic
-        // only); its SVD against this factorisation and eq. 22-24's.
-        std::vector<size_t> cols;
-        for (size_t j = 0; j < BB; ++j) {
-            const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
-            auto theta_ok = [&](int b) {
-                const Vec3 w = square_to_hemisphere(Vec2((b % N + 0.5f) / N, (b / N + 0.5f) / N));
-                return w.z >= std::cos(75.0 * Pi / 180.0) - 1e-6;
-            };
-            if (theta_ok(bo) && theta_ok(bi)) cols.push_back(j);
-        }
-        if (cols.empty())
-            for (size_t j = 0; j < BB; ++j) cols.push_back(j);
-        Eigen::MatrixXd A(P, Eigen::Index(cols.size()));
-        for (size_t c = 0; c < cols.size(); ++c) {
-            const size_t j = cols[c];
-            const double e = eps_bin[1] / P;
-            for (int p = 0; p < P; ++p) {
-                double r = (num[at(p, j, 1)] + e * S_global[1]) / (den[at(p, j, 1)] + e);
-                if (S_cap[1] > 0) r = std::min(r, S_cap[1] * T[size_t(p) * 3 + 1] * T_mean[1]);
-                A(p, Eigen::Index(c)) = r;
-            }
-        }
-        const Eigen::MatrixXd G = A * A.transpose();
-        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(G);
-        std::vector<double> lam;
-        for (int p = 0; p < P; ++p) lam.push_back(std::max(0.0, es.eigenvalues()(p)));
-        std::sort(lam.rbegin(), lam.rend());
-        double tot = 0;
-        for (double l : lam) tot += l;
-        o.sv.clear();
-        for (double l : lam) o.sv.push_back(std::sqrt(l));
-        o.energy = tot > 0 ? lam[0] / tot : 1.0;
-        o.svd_err = tot > 0 ? std::sqrt(std::max(0.0, 1.0 - lam[0] / tot)) : 0.0;
-        // Eq. 22-24 on the same R~: S' = mean over patches, T' = mean over bins / its mean.
-        const size_t C = cols.size();
-        std::vector<double> Sp(C, 0.0), Tp(size_t(P), 0.0);
-        for (int p = 0; p < P; ++p)
-            for (size_t c = 0; c < C; ++c) Sp[c] += A(p, Eigen::Index(c)) / P, Tp[size_t(p)] += A(p, Eigen::Index(c)) / double(C);
-        double tm = 0;
-        for (double t : Tp) tm += t / P;
-        double e_ts = 0, e_paper = 0;
-        for (int p = 0; p < P; ++p)
-            for (size_t c = 0; c < C; ++c) {
-                const double r = A(p, Eigen::Index(c));
-                const double a = r - T[size_t(p) * 3 + 1] * S[cols[c] * 3 + 1], b = r - Tp[size_t(p)] / tm * Sp[c];
-                e_ts += a * a, e_paper += b * b;
-            }
-        o.ts_err = tot > 0 ? std::sqrt(e_ts / tot) : 0.0;
-        o.paper_err = tot > 0 ? std::sqrt(e_paper / tot) : 0.0;
-    };
-    Out o1;
+    TableStats o1;
     build(false, single, o1);
     stats.S_rel_se_median = o1.med, stats.S_rel_se_p90 = o1.p90, stats.S_rel_se_max = o1.mx;
     stats.S_rel_se_median_outer = o1.med_outer, stats.T_rel_se_max = o1.t_max;
@@ -548,7 +657,7 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
     stats.S_rel_se_median_paper_counts = o1.med_paper;
     stats.singular_values = o1.sv;
     if (m_opt.interreflections) {
-        Out o2;
+        TableStats o2;
         build(true, ir_tab, o2);
         stats.S_ir_rel_se_median = o2.med, stats.S_ir_rel_se_p90 = o2.p90;
         stats.S_ir_rel_se_median_outer = o2.med_outer, stats.T_ir_rel_se_max = o2.t_max;

@@ -126,6 +126,7 @@ public:
     const ScalingStats &stats() const { return m_stats; }
 
 private:
+    struct Task;  ///< one (patch, ωo bin) task of a round (scaling.cpp)
     void trace_task(size_t task, uint64_t round_seed);
     /// MPI: every rank's tasks of the round to every rank (add_round), counters summed.
     void share_round(const ScalingStats &before);

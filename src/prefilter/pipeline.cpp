@@ -1,0 +1,274 @@
+// Paper 004's precomputation, stage by stage: see pipeline.h.
+#include "prefilter/pipeline.h"
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include "core/distributed.h"
+#include "core/error.h"
+#include "core/progress.h"
+#include "core/registry.h"
+#include "geometry/heightfield.h"
+#include "geometry/heightmap_gen.h"
+#include "meso_version.h"
+#include "prefilter/least_squares.h"
+#include "prefilter/patch_ndf.h"
+#include "prefilter/scaling.h"
+#include "sampling/rng.h"
+
+namespace meso::prefilter {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+/// Paper 004 §4.1's regulariser weight w (eq. 10), recorded in the manifest.
+constexpr double kLsqW = 0.01;
+
+std::string scales_text(const std::vector<int> &scales) { return fmt::format("{}", fmt::join(scales, ",")); }
+
+/// The map, the base BRDF and the manifest's "input" record.
+struct Inputs {
+    HeightMap map;
+    bool periodic = true;
+    std::shared_ptr<Material> base;
+    nlohmann::json base_json;
+    nlohmann::json record;
+};
+
+/// Stage 1: the height map (a file or a generator) and the base BRDF, checked against the options.
+Inputs load_inputs(const PipelineOptions &o) {
+    Inputs in;
+    if (!o.map.empty()) {
+        in.map = read_height_map(o.map);
+        in.record["map"] = fs::absolute(o.map).string();
+    } else {
+        GeneratedMap g = generate_height_map(o.generator, o.generator_params, "--generator " + o.generator);
+        in.map = std::move(g.height);
+        in.periodic = g.periodic;
+        in.record["generator"] = {{"kind", o.generator}, {"params", g.params}};
+    }
+    if (!in.periodic)
+        if (dist::rank() == 0) std::fprintf(stderr, "prefilter: warning: the map does not tile; it is treated as periodic (seam included)\n");
+    std::string base_dir;
+    in.base = load_material_arg(o.base, in.base_json, &base_dir);
+    if (in.base->is_delta_only() || in.base->has_transmission())
+        throw MesoError("--base: the base BRDF must be reflection-only and not purely specular (diffuse, rough "
+                        "conductor or plastic)");
+    const HeightMap &map = in.map;
+    for (int f : o.scales)
+        if (map.width % f || map.height % f || (map.width / f) % o.M || (map.height / f) % o.M)
+            throw MesoError(fmt::format("--scales {}: factor {} must divide the map size {}x{} and leave a multiple "
+                                        "of M = {} coarse cells",
+                                        scales_text(o.scales), f, map.width, map.height, o.M));
+    in.record["map_width"] = map.width;
+    in.record["map_height"] = map.height;
+    in.record["height_scale"] = o.height_scale;
+    in.record["tile_size"] = o.tile_size;
+    in.record["base"] = in.base_json;
+    in.record["base_dir"] = base_dir.empty() ? fs::current_path().string() : fs::absolute(base_dir).string();
+    in.record["periodic"] = in.periodic;
+    return in;
+}
+
+/// Stage 2: the model without levels, its manifest holding every parameter.
+PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
+    PrefilteredModel model;
+    model.map_width = in.map.width;
+    model.map_height = in.map.height;
+    model.height_scale = o.height_scale;
+    model.tile_size = o.tile_size;
+    model.base = in.base_json;
+    model.lobes = o.lobes;
+    model.quadrature = {o.quad_polar, o.quad_azimuth, o.flow_projected_area};
+    model.manifest["meso_version"] = MESO_VERSION;
+    model.manifest["input"] = in.record;
+    model.manifest["parameters"] = {{"scales", o.scales}, {"M", o.M}, {"N", o.N}, {"lobes", o.lobes},
+                                    {"interreflections", o.interreflections}, {"paths_per_bin", o.paths},
+                                    {"low_paths_per_bin", o.low_paths}, {"low_nodes", o.low_nodes}, {"target_error", o.target_error},
+                                    {"max_rounds", o.max_rounds}, {"epsilon", o.epsilon}, {"seed", o.seed},
+                                    {"ndf_samples_per_cell", o.samples_per_cell},
+                                    {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
+                                    {"flow_projected_area", o.flow_projected_area},
+                                    {"lsq_w", kLsqW}};
+    return model;
+}
+
+/// The original microgeometry in two units: cell space (Euclidean cells, effective_brdf.h) for
+/// the paths, map units for the SVNDF fit.
+struct OriginalFields {
+    Heightfield cells, map_units;
+};
+
+/// §4.1: h_low by least squares of the slopes (eq. 9-10), as a float map.
+HeightMap least_squares_stage(const HeightMap &map, int F, nlohmann::json &timing) {
+    const auto t0 = Clock::now();
+    const LowResHeights low = downsample_least_squares(map, F, true, kLsqW);
+    HeightMap h_low(low.width, low.height);
+    for (size_t k = 0; k < low.h.size(); ++k) h_low.h[k] = float(low.h[k]);
+    timing["least_squares_s"] = since(t0);
+    return h_low;
+}
+
+/// §4.2: the patch NDFs (eq. 4) of the original, one per coarse cell.
+std::vector<PatchNdf> svndf_stage(const PipelineOptions &o, const HeightMap &map, const Heightfield &map_units, int F,
+                                  nlohmann::json &timing) {
+    const auto t0 = Clock::now();
+    PatchNdfOptions nopt;
+    nopt.samples_per_cell = o.samples_per_cell;
+    nopt.height_scale = o.height_scale;
+    nopt.cell_size = o.tile_size / map.width;
+    nopt.em.lobes = o.lobes;
+    nopt.em.exact_kappa = true;
+    // Flat patches are deltas: with the EM's default cap (1e6) the lobe's 1e-3 rad spread
+    // still cuts nodes off for ωo within 0.06° of the horizon; 1e9 (vmf.h's limit) makes
+    // that 3e-5 rad.
+    nopt.em.max_kappa = 1e9;
+    std::vector<PatchNdf> ndf = fit_svndf(map_units, F, nopt);
+    timing["svndf_fit_s"] = since(t0);
+    return ndf;
+}
+
+/// §6: rounds of the T/S estimator (eq. 12, 20-24) until the median relative standard error
+/// of S reaches --target-error or --max-rounds; fills the level's tables and `st`.
+void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Material &base, const Heightfield &low_field,
+                   const SvMultiLobe &low_mat, PrefilteredLevel &L, ScalingStats &st) {
+    const int F = L.factor;
+    const bool ir = o.interreflections;
+    ScalingOptions sopt;
+    sopt.M = o.M;
+    sopt.N = o.N;
+    sopt.interreflections = ir;
+    sopt.orig_paths = o.paths;
+    sopt.low_paths = o.low_paths;
+    sopt.low_nodes = o.low_nodes;
+    sopt.epsilon = o.epsilon;
+    sopt.seed = hash_combine(o.seed, uint64_t(F));
+    Progress progress(!o.quiet && dist::rank() == 0, 1.0, "");
+    const auto t_round = std::make_shared<Clock::time_point>(Clock::now());
+    int round = 0;
+    sopt.progress = [&](double frac) {
+        progress.update(frac, since(*t_round), fmt::format("x{} T/S round {}", F, round + 1));
+    };
+    ScalingEstimator est(orig, base, low_field, low_mat, sopt);
+    const auto t0 = Clock::now();
+    double se = 0;
+    for (round = 0; round < std::max(1, o.max_rounds); ++round) {
+        *t_round = Clock::now();
+        est.add_round();
+        progress.finish(since(*t_round));
+        se = est.current_S_rel_se();
+        if (dist::rank() == 0) std::fprintf(stderr, "  x%d: round %d: median relative std. error of S%s %.4f (%.1f s)\n", F, round + 1,
+                     ir ? "_ir" : "", se, since(t0));
+        if (!(o.target_error > 0) || se <= o.target_error) break;
+    }
+    est.finish(L.single, L.ir, st);
+}
+
+nlohmann::json stats_json(const ScalingStats &s, bool ir) {
+    nlohmann::json j = {{"orig_lines", s.orig_lines},
+                        {"low_lines", s.low_lines},
+                        {"orig_path_vertices", s.orig_vertices},
+                        {"rejected_lines", s.rejected},
+                        {"leaked_lines", s.leaked},
+                        {"rounds", s.rounds},
+                        {"core_seconds_orig", s.core_seconds_orig},
+                        {"core_seconds_low", s.core_seconds_low},
+                        {"S_rel_std_error", {{"median", s.S_rel_se_median}, {"p90", s.S_rel_se_p90}, {"max", s.S_rel_se_max},
+                                             {"median_outer_ring", s.S_rel_se_median_outer},
+                                             {"median_at_paper_counts", s.S_rel_se_median_paper_counts}}},
+                        {"T_rel_std_error_max", s.T_rel_se_max},
+                        {"rank1", {{"energy_sigma1_sq", s.rank1_energy},
+                                   {"svd_rel_error", s.rank1_svd_rel_error},
+                                   {"TS_rel_error", s.ts_rel_error}, {"paper_eq22_24_rel_error", s.paper_ts_rel_error},
+                                   {"singular_values", s.singular_values}}}};
+    if (ir) {
+        j["S_ir_rel_std_error"] = {{"median", s.S_ir_rel_se_median}, {"p90", s.S_ir_rel_se_p90},
+                                   {"median_outer_ring", s.S_ir_rel_se_median_outer},
+                                   {"median_at_paper_counts", s.S_ir_rel_se_median_paper_counts}};
+        j["T_ir_rel_std_error_max"] = s.T_ir_rel_se_max;
+        j["rank1_ir"] = {{"energy_sigma1_sq", s.rank1_energy_ir},
+                         {"svd_rel_error", s.rank1_svd_rel_error_ir},
+                         {"TS_rel_error", s.ts_rel_error_ir}, {"paper_eq22_24_rel_error", s.paper_ts_rel_error_ir},
+                         {"singular_values", s.singular_values_ir}};
+    }
+    return j;
+}
+
+/// One level (factor F): h_low, the SVNDF, f'_low (eq. 11) and T / S, with its manifest stats.
+PrefilteredLevel build_level(const PipelineOptions &o, int F, const Inputs &in, const OriginalFields &orig,
+                             const QuadratureOptions &quadrature) {
+    const bool ir = o.interreflections;
+    PrefilteredLevel L;
+    L.factor = F;
+    nlohmann::json timing;
+    L.h_low = least_squares_stage(in.map, F, timing);
+    L.ndf = svndf_stage(o, in.map, orig.map_units, F, timing);
+    size_t converged = 0;
+    double mean_it = 0;
+    for (const auto &p : L.ndf) converged += p.converged, mean_it += p.iterations;
+    if (dist::rank() == 0) std::fprintf(stderr, "  x%d: h_low %dx%d (%.2f s), SVNDF %zu patches (%.2f s, %.0f EM iterations on average)\n", F,
+                 L.h_low.width, L.h_low.height, timing["least_squares_s"].get<double>(), L.ndf.size(),
+                 timing["svndf_fit_s"].get<double>(), mean_it / double(L.ndf.size()));
+    auto t0 = Clock::now();
+    auto low_mat = std::make_shared<SvMultiLobe>(in.base, L.ndf, L.h_low.width, L.h_low.height, quadrature);
+    timing["multilobe_build_s"] = since(t0);
+    const Heightfield low_field(L.h_low, float(o.height_scale * double(L.h_low.width) / o.tile_size), 0.f);
+    t0 = Clock::now();
+    ScalingStats st;
+    scaling_stage(o, orig.cells, *in.base, low_field, *low_mat, L, st);
+    timing["scaling_s"] = since(t0);
+    L.stats = stats_json(st, ir);
+    L.stats["timing"] = timing;
+    L.stats["svndf"] = {{"converged_patches", converged}, {"mean_em_iterations", mean_it / double(L.ndf.size())},
+                        {"multilobe_memory_bytes", low_mat->memory_bytes()}};
+    L.stats["storage_bytes"] = {{"h_low", L.h_low.memory_bytes()},
+                                {"lobes", L.ndf.size() * size_t(5 * o.lobes + 1) * sizeof(float)},
+                                {"T", size_t(o.M) * o.M * 3 * sizeof(float) * (ir ? 2 : 1)},
+                                {"S", size_t(o.N) * o.N * o.N * o.N * 3 * sizeof(float) * (ir ? 2 : 1)}};
+    if (dist::rank() == 0) std::fprintf(stderr,
+                 "  x%d: T/S %.1f s; S rel. std. error median %.4f (grazing ring %.4f; paper's counts: %.4f)%s; rank-1 energy %.4f, "
+                 "|R - T S| / |R| = %.4f vs rank-1 SVD %.4f\n",
+                 F, timing["scaling_s"].get<double>(), ir ? st.S_ir_rel_se_median : st.S_rel_se_median,
+                 ir ? st.S_ir_rel_se_median_outer : st.S_rel_se_median_outer,
+                 ir ? st.S_ir_rel_se_median_paper_counts : st.S_rel_se_median_paper_counts, ir ? " (ir)" : "",
+                 ir ? st.rank1_energy_ir : st.rank1_energy, ir ? st.ts_rel_error_ir : st.ts_rel_error,
+                 ir ? st.rank1_svd_rel_error_ir : st.rank1_svd_rel_error);
+    return L;
+}
+
+}  // namespace
+
+PrefilteredModel build_model(const PipelineOptions &o) {
+    const auto t_all = Clock::now();
+    const Inputs in = load_inputs(o);
+    PrefilteredModel model = empty_model(o, in);
+    const HeightMap &map = in.map;
+    const double cells_per_unit = double(map.width) / o.tile_size;
+    const OriginalFields orig{Heightfield(map, float(o.height_scale * cells_per_unit), 0.f), Heightfield(map, 1.f, 0.f)};
+    if (dist::rank() == 0) std::fprintf(stderr, "prefilter: %dx%d map, base %s, scales %s, M = %d, N = %d, %d lobes, interreflections %s\n",
+                 map.width, map.height, in.base->to_string().c_str(), scales_text(o.scales).c_str(), o.M, o.N, o.lobes,
+                 o.interreflections ? "on" : "off");
+    for (int F : o.scales) model.levels.push_back(build_level(o, F, in, orig, model.quadrature));
+    model.manifest["total_seconds"] = since(t_all);
+    // Under MPI every rank holds the same tables (ScalingEstimator::add_round); rank 0 writes.
+    model.manifest["ranks"] = dist::size();
+    return model;
+}
+
+void run_pipeline(const PipelineOptions &o) {
+    const auto t_all = Clock::now();
+    const PrefilteredModel model = build_model(o);
+    if (dist::rank() != 0) return;
+    model.save(o.output);
+    std::printf("%s\n", fmt::format("prefilter: wrote {} ({} levels, {:.1f} s{})", o.output, model.levels.size(),
+                                    since(t_all), dist::size() > 1 ? fmt::format(", {} ranks", dist::size()) : "")
+                             .c_str());
+}
+
+}  // namespace meso::prefilter
