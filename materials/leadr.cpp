@@ -378,10 +378,8 @@ private:
 };
 
 LeadrShadowing parse_shadowing(const Properties &p) {
-    const std::string s = p.get_string("shadowing", "joint");
-    if (s == "joint") return LeadrShadowing::Joint;
-    if (s == "masking") return LeadrShadowing::Masking;
-    p.fail("shadowing", fmt::format("expected \"joint\" or \"masking\", got \"{}\"", s));
+    return p.get_enum<LeadrShadowing>("shadowing", "joint",
+                                      {{"joint", LeadrShadowing::Joint}, {"masking", LeadrShadowing::Masking}});
 }
 
 int parse_grid(const Properties &p, const char *key, int def) {
@@ -403,22 +401,14 @@ LeadrColormap parse_colormap(const Properties &p, SlopeSource &source) {
         return c;
     }
     c.ramp = parse_ramp(p, "ramp", 3);
-    c.attr_name = p.get_string("attribute", "height");
-    if (c.attr_name == "height") c.attr = ColorAttribute::Height;
-    else if (c.attr_name == "slope_x") c.attr = ColorAttribute::SlopeX;
-    else if (c.attr_name == "slope_y") c.attr = ColorAttribute::SlopeY;
-    else if (c.attr_name == "steepness") c.attr = ColorAttribute::Steepness;
-    else
-        p.fail("attribute",
-               fmt::format("expected \"height\", \"slope_x\", \"slope_y\" or \"steepness\", got \"{}\"", c.attr_name));
-    const std::string f = p.get_string("filter", "gaussian");
-    if (f == "gaussian") c.filtered = true;
-    else if (f == "naive") c.filtered = false;
-    else p.fail("filter", fmt::format("expected \"gaussian\" or \"naive\", got \"{}\"", f));
-    const std::string hd = p.get_string("height_distribution", "fit");
-    if (hd == "fit") c.exact_height = false;
-    else if (hd == "exact") c.exact_height = true;
-    else p.fail("height_distribution", fmt::format("expected \"fit\" or \"exact\", got \"{}\"", hd));
+    c.attr = p.get_enum<ColorAttribute>("attribute", "height",
+                                        {{"height", ColorAttribute::Height},
+                                         {"slope_x", ColorAttribute::SlopeX},
+                                         {"slope_y", ColorAttribute::SlopeY},
+                                         {"steepness", ColorAttribute::Steepness}});
+    c.attr_name = p.get_string("attribute", "height");  // the validated name, for to_string
+    c.filtered = p.get_enum<bool>("filter", "gaussian", {{"gaussian", true}, {"naive", false}});
+    c.exact_height = p.get_enum<bool>("height_distribution", "fit", {{"fit", false}, {"exact", true}});
     c.noise_mean = p.get_float("noise_mean", 0.f);
     c.noise_sigma = p.get_float("noise_sigma", 0.f);
     if (!std::isfinite(c.noise_mean)) p.fail("noise_mean", "expected a finite number");
@@ -475,11 +465,10 @@ std::shared_ptr<Material> make_leadr(const Properties &p) {
     lp.diffuse_n = parse_grid(p, "diffuse_quadrature", 12);
     lp.env_spec.n = parse_grid(p, "env_quadrature", 8);
     lp.env_diff.n = parse_grid(p, "env_diffuse_quadrature", 5);
-    const std::string irr = p.get_string("env_irradiance", "shadowed");
-    if (irr == "shadowed") lp.env_diff.irradiance = LeadrIrradiance::Shadowed;
-    else if (irr == "paper") lp.env_diff.irradiance = LeadrIrradiance::Paper;
-    else if (irr == "gaussian") lp.env_diff.irradiance = LeadrIrradiance::Gaussian;
-    else p.fail("env_irradiance", fmt::format("expected \"shadowed\", \"paper\" or \"gaussian\", got \"{}\"", irr));
+    lp.env_diff.irradiance = p.get_enum<LeadrIrradiance>("env_irradiance", "shadowed",
+                                                         {{"shadowed", LeadrIrradiance::Shadowed},
+                                                          {"paper", LeadrIrradiance::Paper},
+                                                          {"gaussian", LeadrIrradiance::Gaussian}});
     if (p.has("colormap")) {
         if (p.raw("colormap").is_array()) {
             for (const Properties &c : p.children("colormap")) lp.cmaps.push_back(parse_colormap(c, lp.source));
@@ -487,10 +476,7 @@ std::shared_ptr<Material> make_leadr(const Properties &p) {
         } else {
             lp.cmaps.push_back(parse_colormap(p.child("colormap"), lp.source));
         }
-        const std::string comb = p.get_string("colormap_combine", "sum");
-        if (comb == "sum") lp.cmap_product = false;
-        else if (comb == "product") lp.cmap_product = true;
-        else p.fail("colormap_combine", fmt::format("expected \"sum\" or \"product\", got \"{}\"", comb));
+        lp.cmap_product = p.get_enum<bool>("colormap_combine", "sum", {{"sum", false}, {"product", true}});
     } else if (p.has("colormap_combine")) {
         p.fail("colormap_combine", "only meaningful with \"colormap\"");
     }

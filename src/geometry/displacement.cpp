@@ -96,18 +96,14 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
         for (float v : {d.tiling_u, d.tiling_v})
             if (!(v > 0.f) || !(v <= 1e6f)) p.fail("tiling", fmt::format("expected repeat counts in (0, 1e6], got {}", v));
     }
-    std::string mode = p.get_string("mode", "shell");
-    if (mode == "shell") d.mode = DisplacementMode::Shell;
-    else if (mode == "tessellate") d.mode = DisplacementMode::Tessellate;
-    else p.fail("mode", fmt::format("expected \"shell\" or \"tessellate\", got \"{}\"", mode));
+    d.mode = p.get_enum<DisplacementMode>("mode", "shell",
+                                          {{"shell", DisplacementMode::Shell}, {"tessellate", DisplacementMode::Tessellate}});
     if (d.mode == DisplacementMode::Shell) {
         for (const char *k : {"scheme", "level"})
             if (p.has(k)) p.fail(k, "only applies to \"mode\": \"tessellate\"");
     } else {
-        std::string scheme = p.get_string("scheme", "bilinear");
-        if (scheme == "bilinear") d.scheme = SubdivScheme::Bilinear;
-        else if (scheme == "catmull-clark") d.scheme = SubdivScheme::CatmullClark;
-        else p.fail("scheme", fmt::format("expected \"bilinear\" or \"catmull-clark\", got \"{}\"", scheme));
+        d.scheme = p.get_enum<SubdivScheme>("scheme", "bilinear",
+                                            {{"bilinear", SubdivScheme::Bilinear}, {"catmull-clark", SubdivScheme::CatmullClark}});
         d.level = p.get_int("level", -1);
         if (d.level < -1 || d.level > 15) p.fail("level", fmt::format("expected -1 (automatic) or 0..15, got {}", d.level));
     }

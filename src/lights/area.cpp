@@ -219,10 +219,9 @@ MESO_REGISTER_LIGHT("area", "diffuse area emitter on a shape (radiance, two_side
                         Spectrum L = p.get_spectrum("radiance", Spectrum(1.f));
                         if (L.r < 0 || L.g < 0 || L.b < 0) p.fail("radiance", "must be non-negative");
                         bool two_sided = p.get_bool("two_sided", false);
-                        std::string s = p.get_string("sampling", "solid_angle");
-                        if (s != "solid_angle" && s != "area")
-                            p.fail("sampling", fmt::format("expected \"solid_angle\" or \"area\", got \"{}\"", s));
-                        return std::make_shared<AreaLight>(L, two_sided, s == "solid_angle");
+                        const bool solid_angle =
+                            p.get_enum<bool>("sampling", "solid_angle", {{"solid_angle", true}, {"area", false}});
+                        return std::make_shared<AreaLight>(L, two_sided, solid_angle);
                     });
 
 }  // namespace

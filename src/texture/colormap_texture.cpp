@@ -488,19 +488,10 @@ std::unique_ptr<Driver> make_noise(const Properties &p) {
     const int seed = n.get_int("seed", 0);
     if (seed < 0) n.fail("seed", fmt::format("expected an integer >= 0, got {}", seed));
     np.seed = uint64_t(seed);
-    const std::string variance = n.get_string("variance", "local");
-    if (variance == "local")
-        np.variance = NoiseParams::Variance::Local;
-    else if (variance == "process")
-        np.variance = NoiseParams::Variance::Process;
-    else if (variance == "exact")
-        np.variance = NoiseParams::Variance::Exact;
-    else
-        n.fail("variance", fmt::format("expected \"local\", \"process\" or \"exact\", got \"{}\"", variance));
-    const std::string window = n.get_string("window", "mipmap");
-    if (window != "mipmap" && window != "box")
-        n.fail("window", fmt::format("expected \"mipmap\" or \"box\", got \"{}\"", window));
-    np.box_window = window == "box";
+    using Variance = NoiseParams::Variance;
+    np.variance = n.get_enum<Variance>(
+        "variance", "local", {{"local", Variance::Local}, {"process", Variance::Process}, {"exact", Variance::Exact}});
+    np.box_window = n.get_enum<bool>("window", "mipmap", {{"mipmap", false}, {"box", true}});
     n.check_unused("colormap noise");
     return std::make_unique<NoiseDriver>(np);
 }
@@ -509,10 +500,7 @@ std::unique_ptr<Driver> make_image(const Properties &p) {
     const std::string file = p.get_file("filename");
     const bool raw = p.get_bool("raw", false);
     const double scale = get_number(p, "scale", 1.0), offset = get_number(p, "offset", 0.0);
-    const std::string w = p.get_string("wrap_mode", "repeat");
-    WrapMode wrap;
-    if (!parse_wrap_mode(w, wrap))
-        p.fail("wrap_mode", fmt::format("expected \"repeat\", \"clamp\" or \"mirror\", got \"{}\"", w));
+    const WrapMode wrap = parse_wrap_mode(p, "wrap_mode");
     Vec2 tiling(1.f, 1.f);
     if (p.has("tiling")) {
         std::vector<float> t =
@@ -521,14 +509,8 @@ std::unique_ptr<Driver> make_image(const Properties &p) {
             p.fail("tiling", "expected a repeat count or [repeats_u, repeats_v], each in (0, 1e6]");
         tiling = Vec2(t[0], t[1]);
     }
-    const std::string fp = p.get_string("footprint", "trilinear");
-    FootprintFilter filter;
-    if (fp == "trilinear")
-        filter = FootprintFilter::Trilinear;
-    else if (fp == "ewa")
-        filter = FootprintFilter::Ewa;
-    else
-        p.fail("footprint", fmt::format("expected \"trilinear\" or \"ewa\", got \"{}\"", fp));
+    const FootprintFilter filter = p.get_enum<FootprintFilter>(
+        "footprint", "trilinear", {{"trilinear", FootprintFilter::Trilinear}, {"ewa", FootprintFilter::Ewa}});
     const float max_anisotropy = p.get_float("max_anisotropy", 8.f);
     if (!(max_anisotropy >= 1.f && std::isfinite(max_anisotropy)))
         p.fail("max_anisotropy", "expected a finite number >= 1");
@@ -560,22 +542,12 @@ std::shared_ptr<Texture> create_colormap(const Properties &p) {
             if (p.has(k)) p.fail(k, "applies to the image driver ('filename') only");
 
     Ramp ramp = parse_ramp(p, "colormap", 3);
-    const std::string fs = p.get_string("filter", "gaussian");
-    Filter filter;
-    if (fs == "gaussian")
-        filter = Filter::Gaussian;
-    else if (fs == "gaussian_exact")
-        filter = Filter::GaussianExact;
-    else if (fs == "naive")
-        filter = Filter::Naive;
-    else if (fs == "none")
-        filter = Filter::None;
-    else
-        p.fail("filter",
-               fmt::format("expected \"gaussian\", \"gaussian_exact\", \"naive\" or \"none\", got \"{}\"", fs));
-    const std::string out = p.get_string("output", "color");
-    if (out != "color" && out != "statistics")
-        p.fail("output", fmt::format("expected \"color\" or \"statistics\", got \"{}\"", out));
+    const Filter filter = p.get_enum<Filter>("filter", "gaussian",
+                                             {{"gaussian", Filter::Gaussian},
+                                              {"gaussian_exact", Filter::GaussianExact},
+                                              {"naive", Filter::Naive},
+                                              {"none", Filter::None}});
+    const bool statistics = p.get_enum<bool>("output", "color", {{"color", false}, {"statistics", true}});
     int n_mean = 512, n_sigma = 128;
     if (p.has("table_size")) {
         const std::vector<float> t = p.get_floats("table_size");
@@ -596,7 +568,7 @@ std::shared_ptr<Texture> create_colormap(const Properties &p) {
         // A constant driver still needs a table with a sigma axis.
         if (!(sigma_max > 0.0)) sigma_max = 1e-6 * std::max(1.0, ramp.x_max() - ramp.x_min());
     }
-    return std::make_shared<ColormapTexture>(std::move(ramp), std::move(driver), filter, out == "statistics", sigma_max,
+    return std::make_shared<ColormapTexture>(std::move(ramp), std::move(driver), filter, statistics, sigma_max,
                                              n_mean, n_sigma);
 }
 

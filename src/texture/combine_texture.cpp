@@ -54,8 +54,7 @@ private:
 };
 
 std::shared_ptr<Texture> make_combine(const Properties &p) {
-    const std::string op = p.get_string("op", "sum");
-    if (op != "sum" && op != "product") p.fail("op", fmt::format("expected \"sum\" or \"product\", got \"{}\"", op));
+    const bool product = p.get_enum<bool>("op", "sum", {{"sum", false}, {"product", true}});
     std::vector<std::pair<std::shared_ptr<Texture>, float>> terms;
     for (const Properties &t : p.children("terms")) {
         const float w = t.get_float("weight", 1.f);
@@ -64,7 +63,7 @@ std::shared_ptr<Texture> make_combine(const Properties &p) {
         t.check_unused("combine term");
     }
     if (terms.empty()) p.fail("terms", "expected at least one {\"texture\": ..., \"weight\": ...} term");
-    return std::make_shared<CombineTexture>(op == "product", std::move(terms));
+    return std::make_shared<CombineTexture>(product, std::move(terms));
 }
 
 }  // namespace

@@ -99,22 +99,13 @@ private:
 
 std::shared_ptr<Texture> create_bitmap(const Properties &p) {
     std::string file = p.get_file("filename");
-    std::string f = p.get_string("filter_type", "trilinear");
-    Filter filter;
-    if (f == "nearest") filter = Filter::Nearest;
-    else if (f == "bilinear") filter = Filter::Bilinear;
-    else if (f == "trilinear") filter = Filter::Trilinear;
-    else if (f == "ewa") filter = Filter::Ewa;
-    else
-        p.fail("filter_type",
-               fmt::format("expected \"nearest\", \"bilinear\", \"trilinear\" or \"ewa\", got \"{}\"", f));
+    const Filter filter = p.get_enum<Filter>(
+        "filter_type", "trilinear",
+        {{"nearest", Filter::Nearest}, {"bilinear", Filter::Bilinear}, {"trilinear", Filter::Trilinear}, {"ewa", Filter::Ewa}});
     float max_anisotropy = p.get_float("max_anisotropy", 8.f);
     if (!(max_anisotropy >= 1.f && std::isfinite(max_anisotropy)))
         p.fail("max_anisotropy", "expected a finite number >= 1");
-    std::string w = p.get_string("wrap_mode", "repeat");
-    WrapMode wrap;
-    if (!parse_wrap_mode(w, wrap))
-        p.fail("wrap_mode", fmt::format("expected \"repeat\", \"clamp\" or \"mirror\", got \"{}\"", w));
+    const WrapMode wrap = parse_wrap_mode(p, "wrap_mode");
     bool raw = p.get_bool("raw", false);
     float scale = p.get_float("scale", 1.f);
     Vec2 tiling(1.f, 1.f);

@@ -83,13 +83,12 @@ private:
 
 std::shared_ptr<Texture> make_micro_colormap(const Properties &p) {
     Ramp ramp = parse_ramp(p, "colormap", 3);
-    const std::string a = p.get_string("attribute", "height");
-    MicroAttribute attr;
-    if (a == "height") attr = MicroAttribute::Height;
-    else if (a == "slope_x") attr = MicroAttribute::SlopeX;
-    else if (a == "slope_y") attr = MicroAttribute::SlopeY;
-    else if (a == "steepness") attr = MicroAttribute::Steepness;
-    else p.fail("attribute", fmt::format("expected \"height\", \"slope_x\", \"slope_y\" or \"steepness\", got \"{}\"", a));
+    const MicroAttribute attr = p.get_enum<MicroAttribute>("attribute", "height",
+                                                           {{"height", MicroAttribute::Height},
+                                                            {"slope_x", MicroAttribute::SlopeX},
+                                                            {"slope_y", MicroAttribute::SlopeY},
+                                                            {"steepness", MicroAttribute::Steepness}});
+    const std::string a = p.get_string("attribute", "height");  // the validated name, for to_string
     std::shared_ptr<Texture> offset = p.has("offset") ? p.get_texture("offset") : nullptr;
     return std::make_shared<MicroColormap>(std::move(ramp), attr, std::move(offset), a);
 }

@@ -5,15 +5,19 @@
 #include <cmath>
 #include "core/error.h"
 #include "core/math.h"
+#include "core/properties.h"
 
 namespace meso {
 
-bool parse_wrap_mode(const std::string &s, WrapMode &out) {
-    if (s == "repeat") out = WrapMode::Repeat;
-    else if (s == "clamp") out = WrapMode::Clamp;
-    else if (s == "mirror") out = WrapMode::Mirror;
-    else return false;
-    return true;
+WrapMode parse_wrap_mode(const Properties &p, const std::string &key) {
+    return p.get_enum<WrapMode>(key, "repeat",
+                                {{"repeat", WrapMode::Repeat}, {"clamp", WrapMode::Clamp}, {"mirror", WrapMode::Mirror}});
+}
+
+FootprintFilter parse_footprint_filter(const Properties &p, const std::string &key) {
+    return p.get_enum<FootprintFilter>(
+        key, "trilinear",
+        {{"trilinear", FootprintFilter::Trilinear}, {"ewa", FootprintFilter::Ewa}, {"none", FootprintFilter::None}});
 }
 
 namespace {

@@ -35,8 +35,11 @@ enum class WrapMode { Repeat, Clamp, Mirror };
 /// or none (level-0 bilinear: the finest data under the point).
 enum class FootprintFilter { Trilinear, Ewa, None };
 
-/// Parses "repeat" | "clamp" | "mirror"; returns false for anything else.
-bool parse_wrap_mode(const std::string &s, WrapMode &out);
+class Properties;
+/// The wrap mode parameter `key` of a texture: "repeat" (the default), "clamp" or "mirror".
+WrapMode parse_wrap_mode(const Properties &p, const std::string &key);
+/// The footprint filter parameter `key`: "trilinear" (the default), "ewa" or "none".
+FootprintFilter parse_footprint_filter(const Properties &p, const std::string &key);
 
 class MipMap {
 public:

@@ -21,14 +21,6 @@ bool integer_encoded_file(const std::string &path) {
     return base == OIIO::TypeDesc::UINT8 || base == OIIO::TypeDesc::UINT16;
 }
 
-NormalSource::Filter parse_filter(const Properties &p) {
-    const std::string f = p.get_string("filter", "trilinear");
-    if (f == "trilinear") return NormalSource::Filter::Trilinear;
-    if (f == "ewa") return NormalSource::Filter::Ewa;
-    if (f == "none") return NormalSource::Filter::None;
-    p.fail("filter", fmt::format("expected \"trilinear\", \"ewa\" or \"none\", got \"{}\"", f));
-}
-
 }  // namespace
 
 NormalSource::NormalSource(Vec3 constant) : m_const(constant) {}
@@ -100,7 +92,7 @@ NormalSource NormalSource::parse(const Properties &p, const std::string &constan
     if (has_map || has_height) {
         if (p.has(constant_key))
             p.fail(constant_key, fmt::format("give either a map or a constant \"{}\", not both", constant_key));
-        const Filter filter = parse_filter(p);
+        const Filter filter = parse_footprint_filter(p, "filter");
         const float aniso = p.get_float("max_anisotropy", 8.f);
         if (!(aniso >= 1.f) || !std::isfinite(aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
         if (has_map) {

@@ -93,21 +93,13 @@ SlopeSource SlopeSource::parse(const Properties &p) {
         for (const char *k : {"mean_slope", "covariance"})
             if (p.has(k)) p.fail(k, "give either \"heightmap\" (statistics from a map) or constant statistics, not both");
         const Properties hp = p.child("heightmap");
-        const std::string tf = p.get_string("transfer_filter", "exact");
-        if (tf != "exact" && tf != "gaussian")
-            p.fail("transfer_filter", fmt::format("expected \"exact\" or \"gaussian\", got \"{}\"", tf));
+        const bool gaussian = p.get_enum<bool>("transfer_filter", "exact", {{"exact", false}, {"gaussian", true}});
         if (p.has("transfer_filter") && !hp.has("transfer"))
             p.fail("transfer_filter", "only meaningful with a \"transfer\" (a height transfer function g) in the "
                                       "\"heightmap\" block");
-        const bool gaussian = tf == "gaussian";
         // "gaussian": the pyramids of the untransformed f (map units); g is applied per footprint.
         Displacement d = parse_displacement(hp, 0, /*apply_transfer=*/!gaussian);
-        Filter filter = Filter::Trilinear;
-        const std::string f = p.get_string("filter", "trilinear");
-        if (f == "trilinear") filter = Filter::Trilinear;
-        else if (f == "ewa") filter = Filter::Ewa;
-        else if (f == "none") filter = Filter::None;
-        else p.fail("filter", fmt::format("expected \"trilinear\", \"ewa\" or \"none\", got \"{}\"", f));
+        const Filter filter = parse_footprint_filter(p, "filter");
         const float aniso = p.get_float("max_anisotropy", 8.f);
         if (!(aniso >= 1.f) || !std::isfinite(aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
         SlopeSource src(*d.field, d.tiling_u, d.tiling_v, filter, aniso, d.source);
