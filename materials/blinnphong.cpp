@@ -7,7 +7,7 @@
 //   f    = F(wi·h) D(h) G(wo, wi) / (4 cos θo cos θi) · specular_reflectance
 //          + diffuse_reflectance / π
 //   G    = height-correlated Smith 1/(1 + Λ(wo) + Λ(wi)) with the EXACT Smith Λ of this D
-//          (render/microfacet.h, blinnphong_lambda: projected-area identity, quadrature;
+//          (bsdf/microfacet.h, blinnphong_lambda: projected-area identity, quadrature;
 //          tabulated once when the exponent is constant). The usual stand-in — Beckmann's
 //          Λ at the equivalent roughness α = sqrt(2/(s + 2)) (Walter et al. 2007 §5.2; the
 //          equivalence paper 003 uses to convert powers to LEAN moments) — agrees for large s

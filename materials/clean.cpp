@@ -8,7 +8,7 @@
 // the moments to the shading frame (dp/du, dp/dv) is the same as in texture space for a
 // conformal parameterisation. Then the Blinn-Phong base 1/s (or alpha^2/2) is added.
 //
-// Model: exactly `lean` (materials/lean.cpp, render/gaussian_microfacet.h) with
+// Model: exactly `lean` (materials/lean.cpp, bsdf/gaussian_microfacet.h) with
 //   (sxx, syy, sxy) -> ((sxx + syy)/2 + b, (sxx + syy)/2 + b, 0),  mean unchanged.
 // Equal to `lean` when the covariance is isotropic (tested), rounder highlights otherwise.
 // Reciprocal; albedo <= 1.

@@ -6,9 +6,9 @@
 //   rough:  f(wo, wi) = F(wi·h) D(h) G(wo, wi, h) / (4 cos θo cos θi) · specular_reflectance
 //           (Cook & Torrance 1982; Walter et al. 2007, eq. 20), h = normalize(wo + wi).
 //   D: GGX or Beckmann, anisotropic (alpha_u along the shading frame's s axis);
-//   G: height-correlated Smith (Heitz 2014, eq. 99) — see render/microfacet.h for why.
+//   G: height-correlated Smith (Heitz 2014, eq. 99) — see bsdf/microfacet.h for why.
 //   F: unpolarised conductor Fresnel with complex relative IOR eta + i k
-//      (render/fresnel.h; presets from Tungsten's spectral-to-sRGB tables).
+//      (bsdf/fresnel.h; presets from Tungsten's spectral-to-sRGB tables).
 //   Sampling: visible normals (Heitz 2018 GGX, Heitz & d'Eon 2014 Beckmann) or the full
 //   NDF; pdf(wi) = D_wo(h) / (4 wo·h). Directions below the horizon: sample() fails.
 //   Single scattering only: rough conductors lose energy (albedo < F) at high roughness.

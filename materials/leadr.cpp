@@ -8,7 +8,7 @@
 // the LEAN/LEADR "offset of the covariance", §4.1). Without heightmap or covariance, alpha
 // defaults to 0.3 (a plain isotropic Beckmann surface); with either, to 0.
 //
-// Model (local frame: z = the macronormal w_g; D, Lambda from render/slope_distribution.h;
+// Model (local frame: z = the macronormal w_g; D, Lambda from bsdf/slope_distribution.h;
 // n = the mesonormal of eq. 11; area = (n . wo) / (n . w_g); h = normalize(wo + wi))
 //   specular  f |cos theta_i| = F(wi . h) ks D(h) G / (4 area)                   (eq. 16-17)
 //   diffuse   f |cos theta_i| = rho / (pi area) G int <m, wo> <m, wi> / (m . w_g) P22 ds  (eq. 21)
@@ -18,7 +18,7 @@
 //   wi below the mesosurface (Lambda(wi) = inf) gives 0 in both modes; wo below it (area <=
 //   0) reflects nothing; wi.z <= 0 or wo.z <= 0 give 0 (reflection only).
 //   The diffuse slope integral has no closed form: it is evaluated with the paper's N x N
-//   grid (§5.1, render/leadr_quadrature.h; N = `diffuse_quadrature`, lambda(N) = min(5, 0.4 +
+//   grid (§5.1, bsdf/leadr_quadrature.h; N = `diffuse_quadrature`, lambda(N) = min(5, 0.4 +
 //   1.2 ln N)), precomputed once for constant statistics. Default N = 12: RMS error 0.34%,
 //   max 3.2% of the value at wi = normal against N = 128 over 1200 (wo, wi, moments)
 //   configurations including an 80-degree tilt (N = 8: 0.7% / 6.6%; N = 16: 0.16% / 1.5%);
@@ -34,7 +34,7 @@
 //   (4 wo . h). Diffuse: 1/2 cosine about w_g + 1/2 cosine about n (directions with wi.z <= 0
 //   fail), pdf = (wi.z + max(0, wi . n)) / (2 pi). pdf = the mixture, 0 outside the
 //   domain where eval can be non-zero (wi shadowed by the mesosurface, wo masked).
-//   Environment lighting by quadrature (Algorithms 1-3, render/leadr_quadrature.h) for the
+//   Environment lighting by quadrature (Algorithms 1-3, bsdf/leadr_quadrature.h) for the
 //   `path` integrator's `leadr_env_quadrature` option: env_quadrature and env_irradiance.
 //
 // Parameters
@@ -63,10 +63,10 @@
 //                                                  kappa_0 C_0 + kappa_1 C_h + kappa_2 C_s); "product": product of
 //                                                  weight x term (its non-linear C_0 C_h C_s)
 //
-// Colour maps on the Gaussian surface (paper 001 §5.1-5.2; render/transfer_filter.h). The colour
+// Colour maps on the Gaussian surface (paper 001 §5.1-5.2; filter/transfer_filter.h). The colour
 // multiplies both lobes (the paper's assumption that colour and BRDF are uncorrelated). Keys of
 // the "colormap" object:
-//   ramp                  ramp        required     the colour map C (texture/ramp_parse.h)
+//   ramp                  ramp        required     the colour map C (filter/ramp_parse.h)
 //   weight                float       1            the term's weight kappa in a combination
 //   texture               texture     -            instead of ramp/attribute: an uncorrelated term C_0 (§4, e.g. a
 //                                                  `colormap` texture on noise); the BRDF's shadowing G carries

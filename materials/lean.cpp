@@ -4,7 +4,7 @@
 // ray-differential footprint (or given as constants), plus a Blinn-Phong base power s
 // "added as 1/s along the X^2 and Y^2 terms" (paper 003): Sigma += diag(1/s, 1/s).
 //
-// Model (local frame: z = the macronormal; render/gaussian_microfacet.h has the details)
+// Model (local frame: z = the macronormal; bsdf/gaussian_microfacet.h has the details)
 //   f cos(theta_i) = F(wi . h) D(h) G1(wo) G1(wi) / (4 cos(theta_o)),  D = paper 000 eq. 10
 //   G1(k) = min(1, cos(theta_k) / sigma(k)), sigma(k) = (n . k)/(n . z) (1 + Lambda(k))
 //   Walter et al. 2007 microfacet reflection with separable Smith masking, as in J. Dupuy's

@@ -6,7 +6,7 @@
 //   f_spec: the coat's specular reflection. Smooth coat (alpha < 1e-4): a delta lobe of
 //     weight F(cos θo) · specular_reflectance. Rough coat: Walter et al. 2007 microfacet
 //     reflection F(wi·h) D(h) G / (4 cos θo cos θi) · specular_reflectance (isotropic GGX or
-//     Beckmann, height-correlated Smith G, see render/microfacet.h).
+//     Beckmann, height-correlated Smith G, see bsdf/microfacet.h).
 //   f_diff = T(wo) T(wi) / η² · ρ' / π, where
 //     T(μ)  = energy the coat lets through at cos θ = μ: 1 − F(μ, η) for a smooth coat;
 //             1 − E_spec(μ) for a rough one, E_spec the coat's directional albedo

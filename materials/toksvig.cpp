@@ -3,7 +3,7 @@
 // estimates their spread, which widens a Blinn-Phong lobe:
 //   sigma^2 = (1 - |N_a|) / |N_a|,      s_hat = s / (1 + sigma^2 s)         (paper 003)
 // and the surface is shaded with the normalised Blinn-Phong microfacet BRDF of power s_hat
-// (the math of materials/blinnphong.cpp, render/microfacet.h) around the mean normal
+// (the math of materials/blinnphong.cpp, bsdf/microfacet.h) around the mean normal
 // n_a = N_a / |N_a| (normal mapping).
 //
 // Model (local frame: z = the macronormal)

@@ -103,7 +103,7 @@ TEST(LeadrGrid, PatternIsSymmetricAndNormalised) {
 // Error of the diffuse slope integral (eq. 21) on the N x N grid against N = 128 over a sweep
 // of wo, wi (0-89 degrees) and moments (80-degree tilt included), relative to the value at
 // wi = normal. Prints the table; the bounds are the measured values of the lambda rule
-// (render/leadr_quadrature.h) with a small margin.
+// (bsdf/leadr_quadrature.h) with a small margin.
 TEST(LeadrGrid, DiffuseIntegralErrorAgainstN128) {
     std::vector<Vec3> wos, wis;
     for (double t : {0.0, 30.0, 60.0, 80.0, 89.0})
@@ -254,7 +254,7 @@ TEST(LeadrEnvQuadrature, SpecularMatchesMonteCarlo) {
             o.prefilter = false;
             const double e0 = max_rel(leadr_env_specular(g, wo, kEnvFrame, one, *env, o), ref.mean);
             std::printf("    %-3d %.2e           %.2e\n", n, e, e0);
-            // Documented bias (render/leadr_quadrature.h): the prefiltered lookups blur the
+            // Documented bias (bsdf/leadr_quadrature.h): the prefiltered lookups blur the
             // environment over each sample's solid angle (deliberately overestimated, §5.2):
             // up to 8.4% at N = 8 and 4.5% at N = 16 for the rough case, < 2% at N = 32;
             // without prefiltering the grid alone is within 3e-3 from N = 12 on.
@@ -716,7 +716,7 @@ TEST(LeadrEnvQuadrature, Timings) {
 // against the plain path tracer at high spp. A lone convex sphere never occludes its own
 // upper hemisphere, so the quadrature's "unoccluded environment" is exact here and the two
 // agree up to Monte Carlo noise plus the quadrature bias (documented in
-// render/leadr_quadrature.h: a few % at N = 8 with prefiltering, ~1% SH error for the
+// bsdf/leadr_quadrature.h: a few % at N = 8 with prefiltering, ~1% SH error for the
 // diffuse part).
 TEST(LeadrIntegrator, EnvQuadratureMatchesPathTracing) {
     const int w = 128, h = 64;

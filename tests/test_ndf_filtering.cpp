@@ -400,7 +400,7 @@ TEST(NdfFiltering, LightBelowTheMesosurfaceIsBlack) {
 
 TEST(NdfFiltering, TiltedLeanAlbedoAtMostOneAllAround) {
     // Where the mesosurface leans away from wo, sigma(wo) < cos(theta_o) and the plain Smith
-    // G1 exceeds 1; the min(1, .) clamp keeps the albedo <= 1 (render/gaussian_microfacet.h).
+    // G1 exceeds 1; the min(1, .) clamp keeps the albedo <= 1 (bsdf/gaussian_microfacet.h).
     for (const char *c : {R"({"type":"lean","mean_slope":[0.6,0],"covariance":[0.01,0.01,0]})",
                           R"({"type":"clean","mean_slope":[0,-1.2],"covariance":[0.05,0.01,0]})"}) {
         auto m = make(c);

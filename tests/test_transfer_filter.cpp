@@ -1,5 +1,5 @@
 // Filtering non-linear transfer functions (paper 001, Heitz et al. 2014): every closed form of
-// render/transfer_filter.h against an independent brute-force reference written here (composite
+// filter/transfer_filter.h against an independent brute-force reference written here (composite
 // Simpson rules split at every kink, a CDF-based formula for the moments of eq. 15, 2D Simpson
 // of p_s(s) (1 - s.t)+ in a rotated frame, fixed-seed Monte Carlo). Tolerances are the
 // reference's own error estimate (Simpson at n and 2n intervals: |Q_n - Q_2n| is ~15 times the

@@ -1,4 +1,4 @@
-// Fitting vMF mixtures to weighted directions by spherical EM (render/vmf_mixture.h; paper 004
+// Fitting vMF mixtures to weighted directions by spherical EM (bsdf/vmf_mixture.h; paper 004
 // §4.2, the six-lobe patch NDFs): recovery of known mixtures from vmf::sample draws, importance
 // weights, determinism, degenerate inputs, normalisation of mixture_pdf, exact κ vs Banerjee's
 // approximation.

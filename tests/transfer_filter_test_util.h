@@ -1,4 +1,4 @@
-// Brute-force references for the tests of render/transfer_filter.h (paper 001): composite Simpson
+// Brute-force references for the tests of filter/transfer_filter.h (paper 001): composite Simpson
 // rules split at every kink, a CDF-based formula for the moments of eq. 15, 2D Simpson of
 // p_s(s) (1 - s.t)+ in a rotated frame. Shared by test_transfer_filter.cpp (ramps, tables,
 // Gauss-Hermite, §7 moments) and test_transfer_filter_microsurface.cpp (D_h, D_s, steepness).

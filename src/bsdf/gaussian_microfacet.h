@@ -2,7 +2,7 @@
 // correlated) with SEPARABLE Smith masking: the BRDF of the `lean` and `clean` materials
 // (Olano & Baker 2010; paper 003 part 2), in the form of J. Dupuy's LEAN reference
 // implementation (dj_brdf). Local frame: z = the macronormal w_g; D and Lambda are those of
-// render/slope_distribution.h (paper 000 eq. 10, 14-15).
+// bsdf/slope_distribution.h (paper 000 eq. 10, 14-15).
 //
 //   f(wo, wi) cos(theta_i) = F(wi . h) D(h) G1(wo) G1(wi) / (4 cos(theta_o)),  h = normalize(wo + wi)
 //   G1(k) = min(1, cos(theta_k) / sigma(k)),   sigma(k) = (n . k) / (n . z) (1 + Lambda(k))

@@ -143,7 +143,7 @@ inline double leadr_shadowing(double lo, double li, LeadrShadowing mode) {
 
 /// Paper: Algorithm 2 as published; Shadowed: per-point shadowed projection; Gaussian: paper 001
 /// §5.3, the unshadowed irradiance map as a slope colour map filtered with the Gaussian
-/// visible-slope distribution (render/transfer_filter.h): rho / pi <E, D_s>.
+/// visible-slope distribution (filter/transfer_filter.h): rho / pi <E, D_s>.
 enum class LeadrIrradiance { Paper, Shadowed, Gaussian };
 
 /// Options shared by the environment quadratures.

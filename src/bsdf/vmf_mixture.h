@@ -5,7 +5,7 @@
 // §4.2) fits the patch NDF D_uv (eq. 2, the distribution of the micro-normals of a patch,
 // weighted by their area) with six vMF lobes (eq. 4); this is that fit.
 //
-// Model. p(ω) = Σ_j a_j γ(ω; μ_j, κ_j), γ the vMF density of render/vmf.h, a_j > 0, Σ a_j = 1.
+// Model. p(ω) = Σ_j a_j γ(ω; μ_j, κ_j), γ the vMF density of filter/vmf.h, a_j > 0, Σ a_j = 1.
 // Data: directions x_i (any non-zero length: they are normalised in double) with weights
 // w_i ≥ 0 (nullptr: all 1). The fit maximises the weighted log-likelihood Σ_i w_i log p(x_i).
 //

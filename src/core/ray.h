@@ -11,7 +11,7 @@ namespace meso {
 constexpr float MaxFootprintStretch = 1e3f;
 
 /// Embree ray mask of a ray that sees LoD level `level` (0..31): shapes without LoD are
-/// seen by every ray, level k of an LoD chain only by rays with bit k (render/lod.h).
+/// seen by every ray, level k of an LoD chain only by rays with bit k (geometry/lod.h).
 constexpr uint32_t lod_ray_mask(int level) { return 1u << level; }
 
 struct Ray {

@@ -1,4 +1,4 @@
-// Scene syntax of a Ramp (render/transfer_filter.h): colour maps and height transfer functions.
+// Scene syntax of a Ramp (filter/transfer_filter.h): colour maps and height transfer functions.
 //
 //   "colormap": [[0.0, [0.1, 0.2, 0.6]], [0.5, [0.9, 0.8, 0.3]], [1.0, 1.0]]
 //       stops [x, value], x strictly increasing; a value is a number (grey: every channel) or

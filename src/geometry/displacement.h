@@ -2,7 +2,7 @@
 // traced exactly through a shell map (mode "shell") or refined into triangles with
 // OpenSubdiv (mode "tessellate"). See docs/scene-format.md, "displacement".
 //
-// Height transfer functions (paper 001 §7): "transfer": a one-channel ramp g (texture/ramp_parse.h)
+// Height transfer functions (paper 001 §7): "transfer": a one-channel ramp g (filter/ramp_parse.h)
 // applied to every map value before scale and offset, field = offset + scale * g(map): the exact
 // micro-geometry h = g(f) of a grey function f (noise, a generated map) reshaped by a non-linear
 // curve (plateaus, clipping). g is piecewise linear, constant beyond its first and last stop.

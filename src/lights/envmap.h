@@ -35,7 +35,7 @@ public:
     int width() const { return m_w; }
     int height() const { return m_h; }
     /// The texels (linear radiance × scale, row-major, top row first) and the rotation, for
-    /// consumers that filter the map themselves (render/leadr_quadrature.h).
+    /// consumers that filter the map themselves (bsdf/leadr_quadrature.h).
     const std::vector<Spectrum> &texels() const { return m_texels; }
     const Transform &to_world() const { return m_to_world; }
 

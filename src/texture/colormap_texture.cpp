@@ -4,7 +4,7 @@
 // Model. The footprint average of C(f) is the inner product <C, D_f> with the distribution D_f
 // of f over the footprint (eq. 6-7). "gaussian" approximates D_f by N(f_bar, sigma_f^2) and reads
 // <C, N(f_bar, sigma_f^2)> = [C * N(0, sigma_f^2)](f_bar) from the paper's preconvolved 2D table
-// indexed by (f_bar, sigma_f) (eq. 9; render/transfer_filter.h, PreconvolvedTable::of_ramp).
+// indexed by (f_bar, sigma_f) (eq. 9; filter/transfer_filter.h, PreconvolvedTable::of_ramp).
 // The statistics of the two drivers:
 //
 //   image  f = offset + scale * (channel average of the texel). A 2-channel MIP pyramid holds
@@ -83,7 +83,7 @@
 //
 // Parameters
 //   name            type              default        notes
-//   colormap        ramp              required       3-channel colour map (texture/ramp_parse.h syntax)
+//   colormap        ramp              required       3-channel colour map (filter/ramp_parse.h syntax)
 //   filename        string            -              grey image driver (channel average of RGB; alpha
 //                                                    ignored); exactly one of filename / noise
 //   noise           object            -              procedural driver: {mean 0, sigma 1, freq_min 1,

@@ -16,7 +16,7 @@
 //
 // Parameters
 //   name       type     default   notes
-//   colormap   ramp     required  stops or an image (texture/ramp_parse.h), 3 channels
+//   colormap   ramp     required  stops or an image (filter/ramp_parse.h), 3 channels
 //   attribute  string   "height"  "height" | "slope_x" | "slope_y" | "steepness"
 //   offset     texture  0         added to the attribute (its channel average): e.g. a grey noise
 //                                 bitmap for the noise-perturbed heights C(h + r(x)) of §5.1
