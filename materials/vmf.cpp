@@ -267,190 +267,219 @@ private:
     Config m;
 };
 
-VmfMode parse_mode(const Properties &p) {
-    const std::string s = p.get_string("mode", "adaptive");
-    if (s == "adaptive") return VmfMode::Adaptive;
-    if (s == "single" || s == "1x1") return VmfMode::Single;
-    if (s == "1x4") return VmfMode::Four;
-    if (s == "2x4") return VmfMode::Eight;
-    if (s == "naive") return VmfMode::Naive;
-    if (s == "lean") return VmfMode::Lean;
-    if (s == "direct") return VmfMode::Direct;
-    p.fail("mode", fmt::format("unknown mode '{}' (expected adaptive, single, 1x4, 2x4, naive, lean or direct)", s));
-}
-
-FootprintFilter parse_own_filter(const Properties &p) {
-    const std::string f = p.get_string("filter", "trilinear");
-    if (f == "trilinear") return FootprintFilter::Trilinear;
-    if (f == "ewa") return FootprintFilter::Ewa;
-    if (f == "none") return FootprintFilter::None;
-    p.fail("filter", fmt::format("unknown filter '{}' (expected trilinear, ewa or none)", f));
-}
-
-std::shared_ptr<Material> make_vmf(const Properties &p) {
-    Vmf::Config c;
+/// Algorithm 1's mode and thresholds, and the ‖r‖ → κ solver (§4).
+VmfMap::Params parse_map_params(const Properties &p) {
     VmfMap::Params params;
-    params.mode = parse_mode(p);
+    params.mode = p.get_enum<VmfMode>("mode", "adaptive",
+                                      {{"adaptive", VmfMode::Adaptive}, {"single", VmfMode::Single},
+                                       {"1x1", VmfMode::Single}, {"1x4", VmfMode::Four}, {"2x4", VmfMode::Eight},
+                                       {"naive", VmfMode::Naive}, {"lean", VmfMode::Lean}, {"direct", VmfMode::Direct}});
     params.eps0 = p.get_float("epsilon0", 0.95f);
     params.eps1 = p.get_float("epsilon1", 0.85f);
     for (const char *k : {"epsilon0", "epsilon1"}) {
         const double e = k[7] == '0' ? params.eps0 : params.eps1;
         if (!(e >= 0.0 && e <= 1.0)) p.fail(k, "expected a threshold on ||r|| in [0, 1]");
     }
-    const std::string solver = p.get_string("r_solver", "exact");
-    if (solver != "exact" && solver != "table") p.fail("r_solver", "expected \"exact\" or \"table\"");
-    params.r_table = solver == "table";
+    params.r_table = p.get_choice("r_solver", "exact", {"exact", "table"}) == "table";
+    return params;
+}
 
-    // Grid and normals.
+/// The texels' inputs to the instant BRDF map (§4), on the gw × gh grid.
+struct TexelInputs {
     int gw = 1, gh = 1;
-    std::vector<float> normals;  // level-0 average normals (3 per texel) when a map is given
+    std::vector<float> normals;        ///< level-0 average normals (3 per texel) when a map is given
+    std::shared_ptr<Texture> ndf;      ///< κ_N per texel (absent: no NDF lobe)
+    bool ndf_auto = false;             ///< κ_N from the length of the average normal (eq. 8)
+    std::vector<BaseLobe> base;        ///< base BRDF as vMF lobes (weights normalised) ...
+    std::shared_ptr<Texture> exponent; ///< ... or a Blinn-Phong power s
+};
+
+/// The grid: the normal map's (`normals` or `heightmap`), or `resolution` with its own
+/// tiling and footprint filter.
+void parse_grid(const Properties &p, Vmf::Config &c, TexelInputs &t) {
     if (p.has("normals") || p.has("heightmap")) {
         if (p.has("resolution")) p.fail("resolution", "the grid is the normal map's; give no resolution with a map");
         c.normals = NormalSource::parse(p, "normal", /*unit_constant=*/true, /*allow_heightmap=*/true);
         const MipMap *mip = c.normals->mip();
-        gw = mip->width(0), gh = mip->height(0);
-        normals.resize(size_t(gw) * gh * 3);
-        for (int y = 0; y < gh; ++y)
-            for (int x = 0; x < gw; ++x)
-                for (int k = 0; k < 3; ++k) normals[(size_t(y) * gw + x) * 3 + k] = mip->texel(0, x, y)[k];
+        t.gw = mip->width(0), t.gh = mip->height(0);
+        t.normals.resize(size_t(t.gw) * t.gh * 3);
+        for (int y = 0; y < t.gh; ++y)
+            for (int x = 0; x < t.gw; ++x)
+                for (int k = 0; k < 3; ++k) t.normals[(size_t(y) * t.gw + x) * 3 + k] = mip->texel(0, x, y)[k];
         c.filter = c.normals->filter();
         c.max_aniso = c.normals->max_anisotropy();
+        return;
+    }
+    if (p.has("uv_length")) p.fail("uv_length", "only meaningful with a \"heightmap\"");
+    if (p.has("resolution")) {
+        const std::vector<float> r = p.get_floats("resolution");
+        if (r.size() != 2 || !(r[0] >= 1.f && r[0] <= 16384.f) || !(r[1] >= 1.f && r[1] <= 16384.f) ||
+            r[0] != std::floor(r[0]) || r[1] != std::floor(r[1]))
+            p.fail("resolution", "expected [width, height], integers in [1, 16384]");
+        t.gw = int(r[0]), t.gh = int(r[1]);
+    }
+    if (p.has("tiling")) {
+        std::vector<float> tl = p.raw("tiling").is_number() ? std::vector<float>{p.get_float("tiling"), 0.f}
+                                                             : p.get_floats("tiling");
+        if (tl.size() == 2 && tl[1] == 0.f) tl[1] = tl[0];
+        if (tl.size() != 2 || !(tl[0] > 0.f && tl[0] <= 1e6f) || !(tl[1] > 0.f && tl[1] <= 1e6f))
+            p.fail("tiling", "expected a number or [repeats_u, repeats_v] in (0, 1e6]");
+        c.tu = tl[0], c.tv = tl[1];
+    }
+    c.filter = p.get_enum<FootprintFilter>(
+        "filter", "trilinear",
+        {{"trilinear", FootprintFilter::Trilinear}, {"ewa", FootprintFilter::Ewa}, {"none", FootprintFilter::None}});
+    c.max_aniso = p.get_float("max_anisotropy", 8.f);
+    if (!(c.max_aniso >= 1.f) || !std::isfinite(c.max_aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
+}
+
+/// The NDF lobe κ_N: a texture, or "auto" from a heightmap's average normals.
+void parse_ndf(const Properties &p, const Vmf::Config &c, TexelInputs &t) {
+    if (!p.has("ndf_kappa")) return;
+    if (p.raw("ndf_kappa").is_string() && p.raw("ndf_kappa").get<std::string>() == "auto") {
+        if (!c.normals || c.normals->space() != NormalSource::Space::UV)
+            p.fail("ndf_kappa", "\"auto\" derives kappa_N from a heightmap's average normals; give a heightmap");
+        t.ndf_auto = true;
     } else {
-        if (p.has("uv_length")) p.fail("uv_length", "only meaningful with a \"heightmap\"");
-        if (p.has("resolution")) {
-            const std::vector<float> r = p.get_floats("resolution");
-            if (r.size() != 2 || !(r[0] >= 1.f && r[0] <= 16384.f) || !(r[1] >= 1.f && r[1] <= 16384.f) ||
-                r[0] != std::floor(r[0]) || r[1] != std::floor(r[1]))
-                p.fail("resolution", "expected [width, height], integers in [1, 16384]");
-            gw = int(r[0]), gh = int(r[1]);
-        }
-        if (p.has("tiling")) {
-            std::vector<float> t = p.raw("tiling").is_number() ? std::vector<float>{p.get_float("tiling"), 0.f}
-                                                                : p.get_floats("tiling");
-            if (t.size() == 2 && t[1] == 0.f) t[1] = t[0];
-            if (t.size() != 2 || !(t[0] > 0.f && t[0] <= 1e6f) || !(t[1] > 0.f && t[1] <= 1e6f))
-                p.fail("tiling", "expected a number or [repeats_u, repeats_v] in (0, 1e6]");
-            c.tu = t[0], c.tv = t[1];
-        }
-        c.filter = parse_own_filter(p);
-        c.max_aniso = p.get_float("max_anisotropy", 8.f);
-        if (!(c.max_aniso >= 1.f) || !std::isfinite(c.max_aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
+        t.ndf = p.get_texture("ndf_kappa");
     }
+}
 
-    // NDF lobe.
-    std::shared_ptr<Texture> ndf;
-    bool ndf_auto = false;
-    if (p.has("ndf_kappa")) {
-        if (p.raw("ndf_kappa").is_string() && p.raw("ndf_kappa").get<std::string>() == "auto") {
-            if (!c.normals || c.normals->space() != NormalSource::Space::UV)
-                p.fail("ndf_kappa", "\"auto\" derives kappa_N from a heightmap's average normals; give a heightmap");
-            ndf_auto = true;
-        } else {
-            ndf = p.get_texture("ndf_kappa");
-        }
-    }
-
-    // Base BRDF.
+/// `lobes`: 1 to kMaxTexelLobes vMF lobes of half vectors, weights normalised to sum 1.
+std::vector<BaseLobe> parse_lobes(const Properties &p) {
+    const std::vector<Properties> lp = p.children("lobes");
+    if (lp.empty() || lp.size() > size_t(kMaxTexelLobes)) p.fail("lobes", "expected 1 to 8 lobes");
     std::vector<BaseLobe> base;
-    std::shared_ptr<Texture> exponent;
+    double wsum = 0.0;
+    for (const Properties &l : lp) {
+        BaseLobe b;
+        b.dir = l.get_texture("direction");
+        if (b.dir->is_constant()) {
+            const Spectrum d = b.dir->mean();
+            const float len = length(Vec3(d.r, d.g, d.b));
+            if (!(len > 0.f) || !std::isfinite(len))
+                l.fail("direction", "expected a non-zero, finite [x, y, z] (or a texture of directions)");
+        }
+        b.kappa = l.get_texture("kappa");
+        b.weight = l.get_float("weight", 1.f);
+        if (!(b.weight > 0.0) || !std::isfinite(b.weight)) l.fail("weight", "expected a positive, finite weight");
+        if (b.kappa->is_constant()) {
+            const float k = b.kappa->mean().average();
+            if (!(k >= 0.f) || !std::isfinite(k)) l.fail("kappa", "expected a finite concentration >= 0");
+        }
+        l.check_unused("vmf lobe");
+        wsum += b.weight;
+        base.push_back(b);
+    }
+    for (BaseLobe &b : base) b.weight /= wsum;
+    return base;
+}
+
+/// The base BRDF: `lobes` or a Blinn-Phong `exponent` (not both).
+void parse_base_brdf(const Properties &p, TexelInputs &t) {
     if (p.has("lobes")) {
         if (p.has("exponent")) p.fail("exponent", "give either \"exponent\" (Blinn-Phong) or \"lobes\", not both");
-        const std::vector<Properties> lp = p.children("lobes");
-        if (lp.empty() || lp.size() > size_t(kMaxTexelLobes)) p.fail("lobes", "expected 1 to 8 lobes");
-        double wsum = 0.0;
-        for (const Properties &l : lp) {
-            BaseLobe b;
-            b.dir = l.get_texture("direction");
-            if (b.dir->is_constant()) {
-                const Spectrum d = b.dir->mean();
-                const float len = length(Vec3(d.r, d.g, d.b));
-                if (!(len > 0.f) || !std::isfinite(len))
-                    l.fail("direction", "expected a non-zero, finite [x, y, z] (or a texture of directions)");
-            }
-            b.kappa = l.get_texture("kappa");
-            b.weight = l.get_float("weight", 1.f);
-            if (!(b.weight > 0.0) || !std::isfinite(b.weight)) l.fail("weight", "expected a positive, finite weight");
-            if (b.kappa->is_constant()) {
-                const float k = b.kappa->mean().average();
-                if (!(k >= 0.f) || !std::isfinite(k)) l.fail("kappa", "expected a finite concentration >= 0");
-            }
-            l.check_unused("vmf lobe");
-            wsum += b.weight;
-            base.push_back(b);
-        }
-        for (BaseLobe &b : base) b.weight /= wsum;
+        t.base = parse_lobes(p);
     } else {
-        exponent = p.get_texture("exponent", Spectrum(100.f));
-        if (exponent->is_constant()) {
-            const float s = exponent->mean().average();
+        t.exponent = p.get_texture("exponent", Spectrum(100.f));
+        if (t.exponent->is_constant()) {
+            const float s = t.exponent->mean().average();
             if (!(s >= 0.f) || !std::isfinite(s)) p.fail("exponent", "expected a finite Blinn-Phong power >= 0");
         }
     }
-    if (ndf && ndf->is_constant()) {
-        const float k = ndf->mean().average();
-        if (!(k >= 0.f)) p.fail("ndf_kappa", "expected kappa_N >= 0 (or \"auto\")");
-    }
+}
 
+/// kd, ks, the Fresnel factor Fs and the shadowing G of the model above.
+void parse_shading(const Properties &p, Vmf::Config &c) {
     c.kd = p.get_texture("diffuse", Spectrum(0.f));
     c.ks = p.get_texture("specular", Spectrum(1.f));
-    const std::string fr = p.get_string("fresnel", "none");
-    if (fr == "none") c.fresnel = FresnelKind::None;
-    else if (fr == "schlick") c.fresnel = FresnelKind::Schlick;
-    else if (conductor_preset(fr, c.eta, c.k)) c.fresnel = FresnelKind::Conductor, c.conductor = fr;
-    else p.fail("fresnel", fmt::format("unknown '{}' (expected none, schlick or a conductor: {})", fr, conductor_preset_list()));
-    const std::string sh = p.get_string("shadowing", "none");
-    if (sh != "none" && sh != "smith") p.fail("shadowing", "expected \"none\" or \"smith\"");
-    c.smith = sh == "smith";
+    std::vector<std::string> fresnels = {"none", "schlick"};
+    for (const std::string &n : conductor_preset_names())
+        if (n != "none") fresnels.push_back(n);
+    const std::string fr = p.get_choice("fresnel", "none", fresnels);
+    if (fr == "none") {
+        c.fresnel = FresnelKind::None;
+    } else if (fr == "schlick") {
+        c.fresnel = FresnelKind::Schlick;
+    } else {
+        conductor_preset(fr, c.eta, c.k);  // one of conductor_preset_names(): known
+        c.fresnel = FresnelKind::Conductor;
+        c.conductor = fr;
+    }
+    c.smith = p.get_choice("shadowing", "none", {"none", "smith"}) == "smith";
+}
+
+/// Blinn-Phong base BRDF: one lobe along the texel normal n. The power s convolved with
+/// the NDF lobe, s' = κ_N s / (κ_N + s) (eq. 13), is the lobe's κ = s' + 1 (eq. 14).
+void blinn_phong_lobe(double s, double kappa_n, const Vec3 &n, VmfLobe &out) {
+    s = std::isfinite(s) && s > 0.0 ? s : 0.0;
+    const double sp = std::isinf(kappa_n) ? s : (kappa_n + s > 0.0 ? kappa_n * s / (kappa_n + s) : 0.0);  // eq. 13
+    out.mu = n;
+    out.kappa = std::min(sp + 1.0, vmf::kMaxKappa);  // eq. 14
+    out.weight = 1.0;
+}
+
+/// The lobes of texel (x, y): its normal n and NDF lobe κ_N, then the base BRDF rotated
+/// into the texel frame with κ convolved with κ_N. Returns the number of lobes.
+int texel_lobes(const TexelInputs &t, int x, int y, VmfLobe *out) {
+    ShadingContext tc;
+    tc.uv = Vec2((x + 0.5f) / t.gw, (y + 0.5f) / t.gh);
+    Vec3 n(0.f, 0.f, 1.f);
+    double kn = INFINITY;
+    if (!t.normals.empty()) {
+        const float *a3 = &t.normals[(size_t(y) * t.gw + x) * 3];
+        const Vec3 a(a3[0], a3[1], a3[2]);
+        const float l = length(a);
+        if (l > 1e-20f && std::isfinite(l)) n = a / l;
+        if (t.ndf_auto) kn = vmf::kappa_from_r(l);
+    }
+    if (t.ndf) {
+        const double v = t.ndf->eval_float(tc);
+        kn = v >= 0.0 ? v : 0.0;
+    }
+    if (t.base.empty()) {
+        blinn_phong_lobe(t.exponent->eval_float(tc), kn, n, out[0]);
+        return 1;
+    }
+    const Frame F = n.z > 0.9999999f ? Frame(Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1)) : perturbed_frame(n);
+    for (size_t i = 0; i < t.base.size(); ++i) {
+        double k = t.base[i].kappa->eval_float(tc);
+        k = std::isfinite(k) && k > 0.0 ? k : (std::isinf(k) ? vmf::kMaxKappa : 0.0);
+        const Spectrum dv = t.base[i].dir->eval(tc);
+        Vec3 d(dv.r, dv.g, dv.b);
+        const float dl = length(d);
+        d = dl > 0.f && std::isfinite(dl) ? d / dl : Vec3(0.f, 0.f, 1.f);
+        out[i].mu = normalize(F.to_world(d));
+        out[i].kappa = std::min(vmf::convolve_kappa(k, kn), vmf::kMaxKappa);
+        out[i].weight = t.base[i].weight;
+    }
+    return int(t.base.size());
+}
+
+std::shared_ptr<Material> make_vmf(const Properties &p) {
+    Vmf::Config c;
+    const VmfMap::Params params = parse_map_params(p);
+    TexelInputs t;
+    parse_grid(p, c, t);
+    parse_ndf(p, c, t);
+    parse_base_brdf(p, t);
+    if (t.ndf && t.ndf->is_constant()) {
+        const float k = t.ndf->mean().average();
+        if (!(k >= 0.f)) p.fail("ndf_kappa", "expected kappa_N >= 0 (or \"auto\")");
+    }
+    parse_shading(p, c);
 
     // The instant BRDF map.
-    const int per_texel = base.empty() ? 1 : int(base.size());
-    auto texel_lobes = [&](int x, int y, VmfLobe *out) -> int {
-        ShadingContext tc;
-        tc.uv = Vec2((x + 0.5f) / gw, (y + 0.5f) / gh);
-        Vec3 n(0.f, 0.f, 1.f);
-        double kn = INFINITY;
-        if (!normals.empty()) {
-            const float *t = &normals[(size_t(y) * gw + x) * 3];
-            const Vec3 a(t[0], t[1], t[2]);
-            const float l = length(a);
-            if (l > 1e-20f && std::isfinite(l)) n = a / l;
-            if (ndf_auto) kn = vmf::kappa_from_r(l);
-        }
-        if (ndf) {
-            const double v = ndf->eval_float(tc);
-            kn = v >= 0.0 ? v : 0.0;
-        }
-        if (base.empty()) {
-            double s = exponent->eval_float(tc);
-            s = std::isfinite(s) && s > 0.0 ? s : 0.0;
-            const double sp = std::isinf(kn) ? s : (kn + s > 0.0 ? kn * s / (kn + s) : 0.0);  // eq. 13
-            out[0].mu = n;
-            out[0].kappa = std::min(sp + 1.0, vmf::kMaxKappa);  // eq. 14
-            out[0].weight = 1.0;
-            return 1;
-        }
-        const Frame F = n.z > 0.9999999f ? Frame(Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1)) : perturbed_frame(n);
-        for (size_t i = 0; i < base.size(); ++i) {
-            double k = base[i].kappa->eval_float(tc);
-            k = std::isfinite(k) && k > 0.0 ? k : (std::isinf(k) ? vmf::kMaxKappa : 0.0);
-            const Spectrum dv = base[i].dir->eval(tc);
-            Vec3 d(dv.r, dv.g, dv.b);
-            const float dl = length(d);
-            d = dl > 0.f && std::isfinite(dl) ? d / dl : Vec3(0.f, 0.f, 1.f);
-            out[i].mu = normalize(F.to_world(d));
-            out[i].kappa = std::min(vmf::convolve_kappa(k, kn), vmf::kMaxKappa);
-            out[i].weight = base[i].weight;
-        }
-        return int(base.size());
-    };
+    const int per_texel = t.base.empty() ? 1 : int(t.base.size());
     try {
-        c.map = std::make_shared<VmfMap>(gw, gh, per_texel, texel_lobes, params);
+        c.map = std::make_shared<VmfMap>(
+            t.gw, t.gh, per_texel, [&](int x, int y, VmfLobe *out) { return texel_lobes(t, x, y, out); }, params);
     } catch (const MesoError &e) {
         p.fail(e.what());
     }
     static const char *modes[] = {"direct", "naive", "1x1", "1x4", "2x4", "adaptive", "lean"};
     c.desc = fmt::format("vmf[{} {}, {}x{} texels x {} lobe(s), {:.1f} MB{}]", modes[int(params.mode)],
-                         c.normals ? c.normals->to_string() : std::string("constant normal"), gw, gh, per_texel,
+                         c.normals ? c.normals->to_string() : std::string("constant normal"), t.gw, t.gh, per_texel,
                          c.map->memory_bytes() / 1048576.0, c.smith ? ", smith" : "");
     return std::make_shared<Vmf>(std::move(c));
 }

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 #include "bsdf/material.h"
+#include "core/error.h"
 #include "filter/vmf.h"
 #include "sampling/rng.h"
 #include "core/properties.h"
@@ -458,4 +459,29 @@ TEST(VmfMaterial, BadInputIsRejected) {
                           R"({"type":"vmf","resolution":[0,4]})", R"({"type":"vmf","r_solver":"newton"})"}) {
         EXPECT_THROW(make(j), std::exception) << j;
     }
+}
+
+// Enumerated parameters go through Properties::get_enum / get_choice: the error names the
+// JSON path and every allowed value.
+TEST(VmfMaterial, EnumeratedParametersNameTheChoices) {
+    auto error_of = [](const std::string &json) -> std::string {
+        try {
+            make(json);
+        } catch (const MesoError &e) {
+            return e.what();
+        }
+        return "";
+    };
+    EXPECT_EQ(error_of(R"({"type":"vmf","mode":"fancy"})"),
+              "material.mode: expected \"adaptive\", \"single\", \"1x1\", \"1x4\", \"2x4\", \"naive\", \"lean\" or "
+              "\"direct\", got \"fancy\"");
+    EXPECT_EQ(error_of(R"({"type":"vmf","r_solver":"newton"})"),
+              "material.r_solver: expected \"exact\" or \"table\", got \"newton\"");
+    EXPECT_EQ(error_of(R"({"type":"vmf","shadowing":"yes"})"),
+              "material.shadowing: expected \"none\" or \"smith\", got \"yes\"");
+    EXPECT_EQ(error_of(R"({"type":"vmf","filter":"box"})"),
+              "material.filter: expected \"trilinear\", \"ewa\" or \"none\", got \"box\"");
+    EXPECT_EQ(error_of(R"({"type":"vmf","fresnel":"Unobtainium"})"),
+              "material.fresnel: expected \"none\", \"schlick\", \"Ag\", \"Al\", \"Au\", \"Cr\", \"Cu\", \"Ni\" or "
+              "\"W\", got \"Unobtainium\"");
 }

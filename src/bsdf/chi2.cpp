@@ -219,14 +219,33 @@ double integrate_pdf(const Material &material, const ShadingContext &ctx, const 
 
 // ---------------------------------------------------------------- the test
 
-Chi2Result chi2_material_test(const Material &mat, const ShadingContext &ctx, const Vec3 &wo, const Chi2Options &opt) {
-    Chi2Result r;
-    r.samples = opt.samples;
-    r.significance = sidak_alpha(opt.alpha, opt.test_count);
-    r.sphere = mat.has_transmission() || !(wo.z > 0.f);
-    Grid g = make_grid(opt.res, r.sphere);
+namespace {
 
-    // 1. histogram of sampled directions + per-sample consistency checks
+/// A finite, non-negative weight, a positive finite pdf and a unit direction.
+bool sample_is_valid(const BSDFSample &bs) {
+    return !(!bs.weight.is_finite() || bs.weight.r < 0.f || bs.weight.g < 0.f || bs.weight.b < 0.f ||
+             !std::isfinite(bs.pdf) || !(bs.pdf > 0.f) || !is_finite(bs.wi) || std::abs(length(bs.wi) - 1.f) > 1e-3f);
+}
+
+/// Compares a sample with the material's own eval and pdf at its direction: the sample's
+/// pdf must be pdf(wi) and its weight eval(wi) / pdf(wi).
+void check_against_eval(const Material &mat, const ShadingContext &ctx, const Vec3 &wo, const BSDFSample &bs,
+                        const Chi2Options &opt, Chi2Result &r) {
+    Spectrum ev = mat.eval(ctx, wo, bs.wi);
+    double pd = mat.pdf(ctx, wo, bs.wi);
+    double pe = rel_err(pd, bs.pdf);
+    r.max_pdf_rel_error = std::max(r.max_pdf_rel_error, pe);
+    if (pe > opt.rel_tolerance) r.pdf_mismatch++;
+    double we = 0.0;
+    for (int ch = 0; ch < 3; ++ch) we = std::max(we, rel_err(double(bs.weight[ch]) * pd, ev[ch]));
+    r.max_weight_rel_error = std::max(r.max_weight_rel_error, we);
+    if (we > opt.rel_tolerance) r.weight_mismatch++;
+}
+
+/// Step 1: the histogram of opt.samples sampled directions over the grid; every sample
+/// counted by kind (failed, invalid, delta, outside, smooth) and the smooth ones checked.
+std::vector<double> sample_histogram(const Material &mat, const ShadingContext &ctx, const Vec3 &wo, const Grid &g,
+                                     const Chi2Options &opt, Chi2Result &r) {
     std::vector<double> observed(g.cells(), 0.0);
     PCG32 rng(opt.seed);
     for (uint64_t i = 0; i < opt.samples; ++i) {
@@ -237,10 +256,7 @@ Chi2Result chi2_material_test(const Material &mat, const ShadingContext &ctx, co
             r.failed++;
             continue;
         }
-        bool bad = !bs.weight.is_finite() || bs.weight.r < 0.f || bs.weight.g < 0.f || bs.weight.b < 0.f ||
-                   !std::isfinite(bs.pdf) || !(bs.pdf > 0.f) || !is_finite(bs.wi) ||
-                   std::abs(length(bs.wi) - 1.f) > 1e-3f;
-        if (bad) {
+        if (!sample_is_valid(bs)) {
             r.invalid++;
             continue;
         }
@@ -255,27 +271,18 @@ Chi2Result chi2_material_test(const Material &mat, const ShadingContext &ctx, co
         }
         observed[c] += 1.0;
         r.smooth++;
-        Spectrum ev = mat.eval(ctx, wo, bs.wi);
-        double pd = mat.pdf(ctx, wo, bs.wi);
-        double pe = rel_err(pd, bs.pdf);
-        r.max_pdf_rel_error = std::max(r.max_pdf_rel_error, pe);
-        if (pe > opt.rel_tolerance) r.pdf_mismatch++;
-        double we = 0.0;
-        for (int ch = 0; ch < 3; ++ch) we = std::max(we, rel_err(double(bs.weight[ch]) * pd, ev[ch]));
-        r.max_weight_rel_error = std::max(r.max_weight_rel_error, we);
-        if (we > opt.rel_tolerance) r.weight_mismatch++;
+        check_against_eval(mat, ctx, wo, bs, opt, r);
     }
+    return observed;
+}
 
-    // 2. expected counts
-    std::vector<double> expected = integrate_cells(mat, ctx, wo, g, opt.sub, double(opt.samples), &observed);
-    for (double &e : expected) {
-        r.pdf_integral += e;
-        e *= double(opt.samples);
-    }
-
-    // 3. Pearson's χ² with pooling of small cells (sorted by expected count)
-    std::vector<int> idx(g.cells());
-    for (int i = 0; i < g.cells(); ++i) idx[i] = i;
+/// Step 3: Pearson's χ² = Σ (O - E)² / E over cells pooled, in order of increasing E,
+/// until each pool expects at least opt.min_expected samples; dof = pools - 1. Returns the
+/// samples that fell in cells whose expected count is 0.
+uint64_t pooled_pearson_chi2(const std::vector<double> &expected, const std::vector<double> &observed,
+                             double min_expected, Chi2Result &r) {
+    std::vector<int> idx(expected.size());
+    for (size_t i = 0; i < idx.size(); ++i) idx[i] = int(i);
     std::sort(idx.begin(), idx.end(), [&](int a, int b) { return expected[a] < expected[b]; });
     double pool_e = 0.0, pool_o = 0.0;
     uint64_t zero_cells_hit = 0;
@@ -286,7 +293,7 @@ Chi2Result chi2_material_test(const Material &mat, const ShadingContext &ctx, co
         }
         pool_e += expected[i];
         pool_o += observed[i];
-        if (pool_e >= opt.min_expected) {
+        if (pool_e >= min_expected) {
             r.chi2 += (pool_o - pool_e) * (pool_o - pool_e) / pool_e;
             r.dof++;
             pool_e = pool_o = 0.0;
@@ -297,7 +304,12 @@ Chi2Result chi2_material_test(const Material &mat, const ShadingContext &ctx, co
         r.dof++;
     }
     r.dof -= 1;
+    return zero_cells_hit;
+}
 
+/// The verdict: the χ² p-value against the corrected significance, and every structural
+/// problem, joined into r.message.
+void judge(uint64_t zero_cells_hit, Chi2Result &r) {
     std::vector<std::string> problems;
     if (r.invalid) problems.push_back(fmt::format("{} samples had a non-finite/negative weight or pdf", r.invalid));
     if (r.outside) problems.push_back(fmt::format("{} samples fell below the horizon of a reflector", r.outside));
@@ -325,36 +337,65 @@ Chi2Result chi2_material_test(const Material &mat, const ShadingContext &ctx, co
     }
     for (size_t i = 0; i < problems.size(); ++i) r.message += (i ? "; " : "") + problems[i];
     r.passed = problems.empty();
+}
+
+/// Step 4: writes both histograms to dir/<name>.json (name made file-safe) for a look at a
+/// failure; sets r.dump_path when written.
+void dump_histograms(const char *dir, const Chi2Options &opt, const Vec3 &wo, const Grid &g,
+                     const std::vector<double> &observed, const std::vector<double> &expected, Chi2Result &r) {
+    nlohmann::json j;
+    j["name"] = opt.name;
+    j["wo"] = {wo.x, wo.y, wo.z};
+    j["n_phi"] = g.n_phi;
+    j["n_cos_theta"] = g.n_z;
+    j["cos_theta_min"] = g.z_min;
+    j["layout"] = "row-major [cos_theta][phi], cos_theta ascending, phi in [0, 2pi)";
+    j["samples"] = opt.samples;
+    j["p_value"] = r.p_value;
+    j["chi2"] = r.chi2;
+    j["dof"] = r.dof;
+    j["message"] = r.message;
+    j["observed"] = observed;
+    j["expected"] = expected;
+    std::error_code ec;
+    std::filesystem::create_directories(dir, ec);
+    std::string safe = opt.name;
+    for (char &ch : safe)
+        if (!(std::isalnum(static_cast<unsigned char>(ch)) || ch == '-' || ch == '_' || ch == '.')) ch = '_';
+    std::string path = (std::filesystem::path(dir) / (safe + ".json")).string();
+    std::ofstream f(path);
+    if (f) {
+        f << j.dump() << "\n";
+        r.dump_path = path;
+    }
+}
+
+}  // namespace
+
+Chi2Result chi2_material_test(const Material &mat, const ShadingContext &ctx, const Vec3 &wo, const Chi2Options &opt) {
+    Chi2Result r;
+    r.samples = opt.samples;
+    r.significance = sidak_alpha(opt.alpha, opt.test_count);
+    r.sphere = mat.has_transmission() || !(wo.z > 0.f);
+    Grid g = make_grid(opt.res, r.sphere);
+
+    // 1. histogram of sampled directions + per-sample consistency checks
+    const std::vector<double> observed = sample_histogram(mat, ctx, wo, g, opt, r);
+
+    // 2. expected counts
+    std::vector<double> expected = integrate_cells(mat, ctx, wo, g, opt.sub, double(opt.samples), &observed);
+    for (double &e : expected) {
+        r.pdf_integral += e;
+        e *= double(opt.samples);
+    }
+
+    // 3. Pearson's χ² with pooling of small cells, and the verdict
+    const uint64_t zero_cells_hit = pooled_pearson_chi2(expected, observed, opt.min_expected, r);
+    judge(zero_cells_hit, r);
 
     // 4. dump on failure
     const char *dir = std::getenv("MESO_CHI2_DUMP_DIR");
-    if (!r.passed && dir && *dir) {
-        nlohmann::json j;
-        j["name"] = opt.name;
-        j["wo"] = {wo.x, wo.y, wo.z};
-        j["n_phi"] = g.n_phi;
-        j["n_cos_theta"] = g.n_z;
-        j["cos_theta_min"] = g.z_min;
-        j["layout"] = "row-major [cos_theta][phi], cos_theta ascending, phi in [0, 2pi)";
-        j["samples"] = opt.samples;
-        j["p_value"] = r.p_value;
-        j["chi2"] = r.chi2;
-        j["dof"] = r.dof;
-        j["message"] = r.message;
-        j["observed"] = observed;
-        j["expected"] = expected;
-        std::error_code ec;
-        std::filesystem::create_directories(dir, ec);
-        std::string safe = opt.name;
-        for (char &ch : safe)
-            if (!(std::isalnum(static_cast<unsigned char>(ch)) || ch == '-' || ch == '_' || ch == '.')) ch = '_';
-        std::string path = (std::filesystem::path(dir) / (safe + ".json")).string();
-        std::ofstream f(path);
-        if (f) {
-            f << j.dump() << "\n";
-            r.dump_path = path;
-        }
-    }
+    if (!r.passed && dir && *dir) dump_histograms(dir, opt, wo, g, observed, expected, r);
     return r;
 }
 

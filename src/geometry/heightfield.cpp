@@ -23,6 +23,15 @@ inline float safe_inv(float d) {
     return 1.f / (std::abs(d) > tiny ? d : std::copysign(tiny, d));
 }
 
+/// Paper 004, Appendix A: height and slopes of the bilinear patch with corner heights h00
+/// (0, 0), h10 (1, 0), h01 (0, 1), h11 (1, 1) at (a, b) in the unit square; g is the twist.
+inline float bilinear_patch(float h00, float h10, float h01, float h11, float a, float b, float &dhdx, float &dhdy) {
+    const float g = h00 + h11 - h10 - h01;
+    dhdx = h10 - h00 + b * g;
+    dhdy = h01 - h00 + a * g;
+    return h00 + a * (h10 - h00) + b * (h01 - h00) + a * b * g;
+}
+
 }  // namespace
 
 Heightfield::Heightfield(const HeightMap &map, float scale, float offset) {
@@ -95,11 +104,7 @@ float Heightfield::eval(double x, double y, float &dhdx, float &dhdy) const {
     int64_t i = ifloor(x), j = ifloor(y);
     float a = float(x - double(i)), b = float(y - double(j));
     float h00 = vertex(i, j), h10 = vertex(i + 1, j), h01 = vertex(i, j + 1), h11 = vertex(i + 1, j + 1);
-    // Paper 004, Appendix A: the slopes of the bilinear patch.
-    float g = h00 + h11 - h10 - h01;
-    dhdx = h10 - h00 + b * g;
-    dhdy = h01 - h00 + a * g;
-    return h00 + a * (h10 - h00) + b * (h01 - h00) + a * b * g;
+    return bilinear_patch(h00, h10, h01, h11, a, b, dhdx, dhdy);
 }
 
 HeightMap Heightfield::box_downsampled(int f) const {
@@ -194,187 +199,296 @@ bool Heightfield::occluded(Vec3 o, Vec3 d, float tmin, float tmax, int64_t ox, i
     return traverse<true>(o, d, tmin, tmax, nullptr, ox, oy);
 }
 
-template <bool AnyHit>
-bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit *hit, int64_t ox,
-                           int64_t oy) const {
-    if (m_levels.empty() || !(tmax > tmin)) return false;
-    // Zero (and denormal-small) direction components become +0: the tile walk (no step
-    // along that axis), the slab tests (1/d = +1e30) and the child order then all agree on
-    // which side of a cell boundary a ray lying exactly on it belongs to. With -0 the slab
-    // tests placed such a ray in the cell on the far side of the boundary while the tile
-    // walk never visited the tile holding that cell: vertical rays at x or y a multiple of
-    // W or H leaked through.
-    for (int k = 0; k < 3; ++k)
-        if (!(std::abs(d[k]) > 1e-30f)) d[k] = 0.f;
-    const float inv[3] = {safe_inv(d.x), safe_inv(d.y), safe_inv(d.z)};
-    // Clip to the height slab of the whole field. A horizontal ray is inside it or never
-    // meets it (with 1/d = 1e30 a ray just below the field got t in [1e27, 1e27]: a walk
-    // over millions of tiles, and tile indices that overflow).
-    if (d.z == 0.f) {
-        if (!(o.z >= m_min && o.z <= m_max)) return false;
-    } else {
-        float ta = (m_min - o.z) * inv[2], tb = (m_max - o.z) * inv[2];
+namespace {
+
+/// A node of the min-max pyramid: (i, j) of `level`, covering 2^level x 2^level cells of
+/// its tile (fewer at the tile's right and top edges).
+struct PyramidNode {
+    int level, i, j;
+};
+
+/// The nodes still to visit in the current tile, depth first: the top one is popped next.
+struct NodeStack {
+    PyramidNode nodes[96];
+    int size = 0;
+    void push(const PyramidNode &n) { nodes[size++] = n; }
+    PyramidNode pop() { return nodes[--size]; }
+    bool empty() const { return size == 0; }
+};
+
+/// Position of the 2D DDA over the W x H tile grid.
+struct TileWalk {
+    int64_t tx = 0, ty = 0;     ///< the current tile
+    int stepx = 1, stepy = 1;   ///< tile step along the ray in x and y
+    double tnx = 0, tny = 0;    ///< ray parameter of the next tile boundary in x and y
+};
+
+/// The part of the ray inside the current tile.
+struct TileSegment {
+    float tile_x = 0.f, tile_y = 0.f;  ///< tile origin in the caller's (small) coordinates
+    float seg0 = 0.f, seg1 = 0.f;      ///< the segment's ray parameters
+    float pad = 0.f;                   ///< their widening (kNodePad relative)
+};
+
+/// Ray height minus patch height over one cell, in the ray's frame relative to the cell corner.
+struct CellPatch {
+    double lx = 0, ly = 0;                     ///< ray origin relative to the cell corner (exact)
+    float h00 = 0, h10 = 0, h01 = 0, h11 = 0;  ///< corner heights
+};
+
+/// Relative widening of the node intervals, which only cull (the leaves clip exactly):
+/// covers the float round-off of the slab values (~2e-7).
+constexpr float kNodePad = 1e-6f;
+
+inline int64_t floor_div(int64_t a, int64_t b) {
+    int64_t q = a / b;
+    return (a % b != 0 && a < 0) ? q - 1 : q;
+}
+
+/// Ray parameter at which p0 + t dir leaves tile `tile` (tile k spans [k size - off,
+/// (k + 1) size - off)) in the direction `step`; infinity when the ray does not move.
+inline double tile_exit_t(int64_t tile, int step, int64_t size, int64_t off, double p0, double dir) {
+    if (dir == 0.0) return double(Infinity);
+    const double boundary = double((tile + (step > 0 ? 1 : 0)) * size - off);
+    return (boundary - p0) / dir;
+}
+
+/// Narrows [c0, c1] to the t where l + t dd lies in [0, 1] (one axis of a cell).
+inline void clip_to_unit(double l, double dd, double &c0, double &c1) {
+    if (dd != 0.0) {
+        double u = -l / dd, v = (1.0 - l) / dd;
+        if (u > v) std::swap(u, v);
+        c0 = std::max(c0, u);
+        c1 = std::min(c1, v);
+    } else if (!(l >= 0.0 && l <= 1.0)) {
+        c1 = -double(Infinity);
+    }
+}
+
+}  // namespace
+
+/// One traverse() call. The ray is walked over the tiles it crosses (TileWalk); in each
+/// tile, the pyramid is descended front to back from a start level that fits the ray's
+/// footprint (push_start_nodes), nodes whose padded [min, max] box the segment misses are
+/// culled (node_overlaps), and the leaves solve the exact bilinear patch (leaf_root).
+struct Heightfield::Traversal {
+    const Heightfield &f;
+    Vec3 o, d;
+    float inv[3];         ///< 1/d, tiny-safe
+    float tmin, tmax;     ///< clipped to the field's height slab by clip_to_height_slab
+    int64_t ox, oy;       ///< the caller's integer cell offset
+    int child_mask;       ///< xor of child indices that visits children front to back
+
+    Traversal(const Heightfield &field, Vec3 o_, Vec3 d_, float tmin_, float tmax_, int64_t ox_, int64_t oy_)
+        : f(field), o(o_), d(d_), tmin(tmin_), tmax(tmax_), ox(ox_), oy(oy_) {
+        // Zero (and denormal-small) direction components become +0: the tile walk (no step
+        // along that axis), the slab tests (1/d = +1e30) and the child order then all agree on
+        // which side of a cell boundary a ray lying exactly on it belongs to. With -0 the slab
+        // tests placed such a ray in the cell on the far side of the boundary while the tile
+        // walk never visited the tile holding that cell: vertical rays at x or y a multiple of
+        // W or H leaked through.
+        for (int k = 0; k < 3; ++k)
+            if (!(std::abs(d[k]) > 1e-30f)) d[k] = 0.f;
+        inv[0] = safe_inv(d.x);
+        inv[1] = safe_inv(d.y);
+        inv[2] = safe_inv(d.z);
+        child_mask = (d.x < 0 ? 1 : 0) | (d.y < 0 ? 2 : 0);
+    }
+
+    /// Clips [tmin, tmax] to the height slab of the whole field; false if nothing is left.
+    bool clip_to_height_slab() {
+        // A horizontal ray is inside the slab or never meets it (with 1/d = 1e30 a ray just
+        // below the field got t in [1e27, 1e27]: a walk over millions of tiles, and tile
+        // indices that overflow).
+        if (d.z == 0.f) return o.z >= f.m_min && o.z <= f.m_max;
+        float ta = (f.m_min - o.z) * inv[2], tb = (f.m_max - o.z) * inv[2];
         if (ta > tb) std::swap(ta, tb);
         // Slightly widened: a ray grazing the top of the field must still reach the leaves.
         float pad = 1e-6f * (std::abs(ta) + std::abs(tb)) + 1e-30f;
         tmin = std::max(tmin, ta - pad);
         tmax = std::min(tmax, tb + pad);
-        if (!(tmax >= tmin)) return false;
+        return tmax >= tmin;
     }
-    // Tiles crossed by the ray between tmin and tmax (2D DDA on the W x H tile grid), walked
-    // in the caller's small coordinates: tile k starts at k W - offset there, an integer
-    // computed exactly, so tile boundaries and the node boxes below agree even when
-    // o.x + offset would not fit in a double's 53 bits.
-    const double W = m_w, H = m_h;
-    auto floor_div = [](int64_t a, int64_t b) {
-        int64_t q = a / b;
-        return (a % b != 0 && a < 0) ? q - 1 : q;
-    };
-    const int64_t qx = floor_div(ox, m_w), qy = floor_div(oy, m_h);
-    int64_t tx = qx + ifloor((double(ox - qx * m_w) + double(o.x) + double(tmin) * d.x) / W);
-    int64_t ty = qy + ifloor((double(oy - qy * m_h) + double(o.y) + double(tmin) * d.y) / H);
-    const int stepx = d.x > 0 ? 1 : -1, stepy = d.y > 0 ? 1 : -1;
-    auto next_t = [&](int64_t tile, int step, int64_t size, int64_t off, double p0, double dir) {
-        if (dir == 0.0) return double(Infinity);
-        const double boundary = double((tile + (step > 0 ? 1 : 0)) * size - off);
-        return (boundary - p0) / dir;
-    };
-    double tnx = next_t(tx, stepx, m_w, ox, o.x, d.x), tny = next_t(ty, stepy, m_h, oy, o.y, d.y);
-    const int top = int(m_levels.size()) - 1;
-    const int child_mask = (d.x < 0 ? 1 : 0) | (d.y < 0 ? 2 : 0);
-    // Relative widening of the node intervals, which only cull (the leaves clip exactly,
-    // below): covers the float round-off of the slab values (~2e-7).
-    const float eps_t = 1e-6f;
 
-    double t_tile0 = tmin;
-    for (int guard = 0; guard < (1 << 22); ++guard) {
-        const double t_tile1 = std::min(double(tmax), std::min(tnx, tny));
-        // Tile origin in the caller's (small) coordinates.
-        const float tile_x = float(tx * m_w - ox), tile_y = float(ty * m_h - oy);
-        const float seg0 = float(t_tile0), seg1 = float(t_tile1);
-        const float pad_tile = eps_t * (std::abs(seg0) + std::abs(seg1)) + 1e-30f;
-        struct Node {
-            int level, i, j;
-        };
-        Node stack[96];
-        int sp = 0;
-        // Start below the tile's root: at the lowest level whose nodes are wider than the
-        // segment's footprint in this tile, so at most 2 x 2 nodes cover it (a short
-        // segment through a shell tetrahedron skips most of the pyramid). The footprint
-        // is padded; extra nodes are only culled.
-        {
-            const float xa = o.x + seg0 * d.x - tile_x, xb = o.x + seg1 * d.x - tile_x;
-            const float ya = o.y + seg0 * d.y - tile_y, yb = o.y + seg1 * d.y - tile_y;
-            const float bx0 = std::max(std::min(xa, xb) - 1e-3f, 0.f), bx1 = std::min(std::max(xa, xb) + 1e-3f, float(m_w));
-            const float by0 = std::max(std::min(ya, yb) - 1e-3f, 0.f), by1 = std::min(std::max(ya, yb) + 1e-3f, float(m_h));
-            const float extent = std::max(bx1 - bx0, by1 - by0);
-            int k = top;
-            if (std::isfinite(extent) && bx1 >= bx0 && by1 >= by0) {
-                k = 0;
-                while (k < top && float(1 << k) < extent + 1.f) ++k;
-            }
-            if (k >= top) {
-                stack[sp++] = {top, 0, 0};
-            } else {
-                const Level &L = m_levels[k];
-                const int i0 = std::min(int(bx0) >> k, L.w - 1), i1 = std::min(int(bx1) >> k, L.w - 1);
-                const int j0 = std::min(int(by0) >> k, L.h - 1), j1 = std::min(int(by1) >> k, L.h - 1);
-                // At most 2 x 2 nodes, pushed back to front like children.
-                for (int q = 3; q >= 0; --q) {
-                    const int c = q ^ child_mask;
-                    const int ni = i0 + (c & 1), nj = j0 + (c >> 1);
-                    if (ni <= i1 && nj <= j1) stack[sp++] = {k, ni, nj};
-                }
-            }
-        }
-        while (sp > 0) {
-            const Node nd = stack[--sp];
-            const Level &L = m_levels[nd.level];
-            const float *mm = &L.minmax[(size_t(nd.j) * L.w + nd.i) * 2];
-            const int span = 1 << nd.level;
-            const float x0 = tile_x + float(nd.i * span), x1 = tile_x + float(std::min((nd.i + 1) * span, m_w));
-            const float y0 = tile_y + float(nd.j * span), y1 = tile_y + float(std::min((nd.j + 1) * span, m_h));
-            float ta = (x0 - o.x) * inv[0], tb = (x1 - o.x) * inv[0];
-            if (ta > tb) std::swap(ta, tb);
-            float tc = (y0 - o.y) * inv[1], td = (y1 - o.y) * inv[1];
-            if (tc > td) std::swap(tc, td);
-            float te = (mm[0] - o.z) * inv[2], tf = (mm[1] - o.z) * inv[2];
-            if (te > tf) std::swap(te, tf);
-            // The pad is relative to the node's own entry and exit, not to the slab values:
-            // a ray (nearly) parallel to x or y has slab values of up to +-1e30 for the
-            // other axis, which would otherwise widen every interval without bound (then
-            // every node passed, and the leaves returned roots of extended patches outside
-            // their cells: hits off the surface).
-            const float xy_near = std::max(ta, tc), xy_far = std::min(tb, td);
-            const float pad = eps_t * std::max(std::abs(std::max(std::max(xy_near, te), seg0)),
-                                               std::abs(std::min(std::min(xy_far, tf), seg1))) + 1e-30f;
-            const float t_near = std::max(xy_near - pad, std::max(te - pad, seg0 - pad_tile));
-            const float t_far = std::min(xy_far + pad, std::min(tf + pad, seg1 + pad_tile));
-            if (!(t_near <= t_far) || t_far < tmin || t_near > tmax) continue;
-            if (nd.level == 0) {
-                const int i1 = nd.i + 1 == m_w ? 0 : nd.i + 1, j1 = nd.j + 1 == m_h ? 0 : nd.j + 1;
-                const float h00 = m_heights[size_t(nd.j) * m_w + nd.i], h10 = m_heights[size_t(nd.j) * m_w + i1];
-                const float h01 = m_heights[size_t(j1) * m_w + nd.i], h11 = m_heights[size_t(j1) * m_w + i1];
-                // The cell's own t interval, in double from the ray relative to the cell
-                // corner (exact: a difference of two floats). Neighbouring cells compute
-                // their shared boundary from the same numbers (1 - lx here is -lx' there),
-                // so the leaves tile the ray without gaps, and a root is accepted only in
-                // its own cell (roots on a patch's extension beyond the cell were hits off
-                // the surface: a ray passing just over a ridge "hit" the extended slope).
-                // One float ulp of slack each side covers the rounding of the two solves.
-                const double lx = double(o.x) - double(x0), ly = double(o.y) - double(y0);
-                double c0 = tmin, c1 = tmax;
-                auto clip_axis = [&](double l, double dd) {
-                    if (dd != 0.0) {
-                        double u = -l / dd, v = (1.0 - l) / dd;
-                        if (u > v) std::swap(u, v);
-                        c0 = std::max(c0, u);
-                        c1 = std::min(c1, v);
-                    } else if (!(l >= 0.0 && l <= 1.0)) {
-                        c1 = -double(Infinity);
-                    }
-                };
-                clip_axis(lx, d.x);
-                clip_axis(ly, d.y);
-                if (!(c1 >= c0)) continue;
-                const float s0 = std::max(std::nextafter(float(c0), -Infinity), tmin);
-                const float s1 = std::min(std::nextafter(float(c1), Infinity), tmax);
-                float th;
-                if (!patch_root(lx, ly, o.z, d, h00, h10, h01, h11, s0, s1, th)) continue;
-                if (!(th > tmin) || th > tmax) continue;
-                if constexpr (AnyHit) {
-                    return true;
-                } else {
-                    // Local patch coordinates of the hit, clamped into the cell.
-                    const float a = std::clamp(float(lx + double(th) * d.x), 0.f, 1.f),
-                                b = std::clamp(float(ly + double(th) * d.y), 0.f, 1.f);
-                    const float g = h00 + h11 - h10 - h01;
-                    hit->t = th;
-                    hit->x = x0 + a;
-                    hit->y = y0 + b;
-                    hit->h = h00 + a * (h10 - h00) + b * (h01 - h00) + a * b * g;
-                    hit->dhdx = h10 - h00 + b * g;
-                    hit->dhdy = h01 - h00 + a * g;
-                    return true;
-                }
-            }
-            // Children pushed back to front, so the one the ray enters first is popped first.
-            for (int k = 3; k >= 0; --k) {
-                const int c = k ^ child_mask;
-                const int ci = 2 * nd.i + (c & 1), cj = 2 * nd.j + (c >> 1);
-                const Level &C = m_levels[nd.level - 1];
-                if (ci < C.w && cj < C.h) stack[sp++] = {nd.level - 1, ci, cj};
-            }
-        }
-        if (t_tile1 >= double(tmax)) break;
-        t_tile0 = t_tile1;
-        if (tnx < tny) {
-            tx += stepx;
-            tnx = next_t(tx, stepx, m_w, ox, o.x, d.x);
+    /// The tile holding the ray at tmin. Tiles are walked in the caller's small
+    /// coordinates: tile k starts at k W - offset there, an integer computed exactly, so
+    /// tile boundaries and the node boxes agree even when o.x + offset would not fit in a
+    /// double's 53 bits.
+    TileWalk start_tile_walk() const {
+        const double W = f.m_w, H = f.m_h;
+        const int64_t qx = floor_div(ox, f.m_w), qy = floor_div(oy, f.m_h);
+        TileWalk w;
+        w.tx = qx + ifloor((double(ox - qx * f.m_w) + double(o.x) + double(tmin) * d.x) / W);
+        w.ty = qy + ifloor((double(oy - qy * f.m_h) + double(o.y) + double(tmin) * d.y) / H);
+        w.stepx = d.x > 0 ? 1 : -1;
+        w.stepy = d.y > 0 ? 1 : -1;
+        w.tnx = tile_exit_t(w.tx, w.stepx, f.m_w, ox, o.x, d.x);
+        w.tny = tile_exit_t(w.ty, w.stepy, f.m_h, oy, o.y, d.y);
+        return w;
+    }
+
+    /// Moves the walk into the next tile along the ray (the nearer of the two boundaries).
+    void step_tile(TileWalk &w) const {
+        if (w.tnx < w.tny) {
+            w.tx += w.stepx;
+            w.tnx = tile_exit_t(w.tx, w.stepx, f.m_w, ox, o.x, d.x);
         } else {
-            ty += stepy;
-            tny = next_t(ty, stepy, m_h, oy, o.y, d.y);
+            w.ty += w.stepy;
+            w.tny = tile_exit_t(w.ty, w.stepy, f.m_h, oy, o.y, d.y);
         }
+    }
+
+    TileSegment tile_segment(const TileWalk &w, double t0, double t1) const {
+        TileSegment s;
+        s.tile_x = float(w.tx * f.m_w - ox);
+        s.tile_y = float(w.ty * f.m_h - oy);
+        s.seg0 = float(t0);
+        s.seg1 = float(t1);
+        s.pad = kNodePad * (std::abs(s.seg0) + std::abs(s.seg1)) + 1e-30f;
+        return s;
+    }
+
+    /// Starts below the tile's root: at the lowest level whose nodes are wider than the
+    /// segment's footprint in this tile, so at most 2 x 2 nodes cover it (a short segment
+    /// through a shell tetrahedron skips most of the pyramid). The footprint is padded;
+    /// extra nodes are only culled.
+    void push_start_nodes(const TileSegment &s, NodeStack &stack) const {
+        const int top = int(f.m_levels.size()) - 1;
+        const float xa = o.x + s.seg0 * d.x - s.tile_x, xb = o.x + s.seg1 * d.x - s.tile_x;
+        const float ya = o.y + s.seg0 * d.y - s.tile_y, yb = o.y + s.seg1 * d.y - s.tile_y;
+        const float bx0 = std::max(std::min(xa, xb) - 1e-3f, 0.f), bx1 = std::min(std::max(xa, xb) + 1e-3f, float(f.m_w));
+        const float by0 = std::max(std::min(ya, yb) - 1e-3f, 0.f), by1 = std::min(std::max(ya, yb) + 1e-3f, float(f.m_h));
+        const float extent = std::max(bx1 - bx0, by1 - by0);
+        int k = top;
+        if (std::isfinite(extent) && bx1 >= bx0 && by1 >= by0) {
+            k = 0;
+            while (k < top && float(1 << k) < extent + 1.f) ++k;
+        }
+        if (k >= top) {
+            stack.push({top, 0, 0});
+            return;
+        }
+        const Level &L = f.m_levels[k];
+        const int i0 = std::min(int(bx0) >> k, L.w - 1), i1 = std::min(int(bx1) >> k, L.w - 1);
+        const int j0 = std::min(int(by0) >> k, L.h - 1), j1 = std::min(int(by1) >> k, L.h - 1);
+        // At most 2 x 2 nodes, pushed back to front like children.
+        for (int q = 3; q >= 0; --q) {
+            const int c = q ^ child_mask;
+            const int ni = i0 + (c & 1), nj = j0 + (c >> 1);
+            if (ni <= i1 && nj <= j1) stack.push({k, ni, nj});
+        }
+    }
+
+    /// Whether the segment meets the node's box (cells in x, y; its [min, max] in height),
+    /// padded. (x0, y0): the box's lower corner.
+    bool node_overlaps(const PyramidNode &nd, const TileSegment &s, float &x0, float &y0) const {
+        const Level &L = f.m_levels[nd.level];
+        const float *mm = &L.minmax[(size_t(nd.j) * L.w + nd.i) * 2];
+        const int span = 1 << nd.level;
+        x0 = s.tile_x + float(nd.i * span);
+        y0 = s.tile_y + float(nd.j * span);
+        const float x1 = s.tile_x + float(std::min((nd.i + 1) * span, f.m_w));
+        const float y1 = s.tile_y + float(std::min((nd.j + 1) * span, f.m_h));
+        float ta = (x0 - o.x) * inv[0], tb = (x1 - o.x) * inv[0];
+        if (ta > tb) std::swap(ta, tb);
+        float tc = (y0 - o.y) * inv[1], td = (y1 - o.y) * inv[1];
+        if (tc > td) std::swap(tc, td);
+        float te = (mm[0] - o.z) * inv[2], tf = (mm[1] - o.z) * inv[2];
+        if (te > tf) std::swap(te, tf);
+        // The pad is relative to the node's own entry and exit, not to the slab values:
+        // a ray (nearly) parallel to x or y has slab values of up to +-1e30 for the
+        // other axis, which would otherwise widen every interval without bound (then
+        // every node passed, and the leaves returned roots of extended patches outside
+        // their cells: hits off the surface).
+        const float xy_near = std::max(ta, tc), xy_far = std::min(tb, td);
+        const float pad = kNodePad * std::max(std::abs(std::max(std::max(xy_near, te), s.seg0)),
+                                              std::abs(std::min(std::min(xy_far, tf), s.seg1))) + 1e-30f;
+        const float t_near = std::max(xy_near - pad, std::max(te - pad, s.seg0 - s.pad));
+        const float t_far = std::min(xy_far + pad, std::min(tf + pad, s.seg1 + s.pad));
+        return t_near <= t_far && !(t_far < tmin) && !(t_near > tmax);
+    }
+
+    /// The ray's root in the leaf cell (x0, y0) of `nd`, in (tmin, tmax]; `cell` gets its patch.
+    bool leaf_root(const PyramidNode &nd, float x0, float y0, CellPatch &cell, float &th) const {
+        const int w = f.m_w;
+        const int i1 = nd.i + 1 == w ? 0 : nd.i + 1, j1 = nd.j + 1 == f.m_h ? 0 : nd.j + 1;
+        cell.h00 = f.m_heights[size_t(nd.j) * w + nd.i];
+        cell.h10 = f.m_heights[size_t(nd.j) * w + i1];
+        cell.h01 = f.m_heights[size_t(j1) * w + nd.i];
+        cell.h11 = f.m_heights[size_t(j1) * w + i1];
+        // The cell's own t interval, in double from the ray relative to the cell
+        // corner (exact: a difference of two floats). Neighbouring cells compute
+        // their shared boundary from the same numbers (1 - lx here is -lx' there),
+        // so the leaves tile the ray without gaps, and a root is accepted only in
+        // its own cell (roots on a patch's extension beyond the cell were hits off
+        // the surface: a ray passing just over a ridge "hit" the extended slope).
+        // One float ulp of slack each side covers the rounding of the two solves.
+        cell.lx = double(o.x) - double(x0);
+        cell.ly = double(o.y) - double(y0);
+        double c0 = tmin, c1 = tmax;
+        clip_to_unit(cell.lx, d.x, c0, c1);
+        clip_to_unit(cell.ly, d.y, c0, c1);
+        if (!(c1 >= c0)) return false;
+        const float s0 = std::max(std::nextafter(float(c0), -Infinity), tmin);
+        const float s1 = std::min(std::nextafter(float(c1), Infinity), tmax);
+        if (!patch_root(cell.lx, cell.ly, o.z, d, cell.h00, cell.h10, cell.h01, cell.h11, s0, s1, th)) return false;
+        return th > tmin && !(th > tmax);
+    }
+
+    /// The hit at th on the leaf patch `cell` with corner (x0, y0).
+    void record_hit(const CellPatch &cell, float x0, float y0, float th, HeightfieldHit &hit) const {
+        // Local patch coordinates of the hit, clamped into the cell.
+        const float a = std::clamp(float(cell.lx + double(th) * d.x), 0.f, 1.f),
+                    b = std::clamp(float(cell.ly + double(th) * d.y), 0.f, 1.f);
+        hit.t = th;
+        hit.x = x0 + a;
+        hit.y = y0 + b;
+        hit.h = bilinear_patch(cell.h00, cell.h10, cell.h01, cell.h11, a, b, hit.dhdx, hit.dhdy);
+    }
+
+    /// The children of `nd` that exist, pushed back to front so that the one the ray
+    /// enters first is popped first.
+    void push_children(const PyramidNode &nd, NodeStack &stack) const {
+        const Level &C = f.m_levels[nd.level - 1];
+        for (int k = 3; k >= 0; --k) {
+            const int c = k ^ child_mask;
+            const int ci = 2 * nd.i + (c & 1), cj = 2 * nd.j + (c >> 1);
+            if (ci < C.w && cj < C.h) stack.push({nd.level - 1, ci, cj});
+        }
+    }
+};
+
+template <bool AnyHit>
+bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit *hit, int64_t ox,
+                           int64_t oy) const {
+    if (m_levels.empty() || !(tmax > tmin)) return false;
+    Traversal tr(*this, o, d, tmin, tmax, ox, oy);
+    if (!tr.clip_to_height_slab()) return false;
+    // Tiles crossed by the ray between tmin and tmax (2D DDA on the W x H tile grid).
+    TileWalk walk = tr.start_tile_walk();
+    double t_tile0 = tr.tmin;
+    for (int guard = 0; guard < (1 << 22); ++guard) {
+        const double t_tile1 = std::min(double(tr.tmax), std::min(walk.tnx, walk.tny));
+        const TileSegment seg = tr.tile_segment(walk, t_tile0, t_tile1);
+        NodeStack stack;
+        tr.push_start_nodes(seg, stack);
+        while (!stack.empty()) {
+            const PyramidNode nd = stack.pop();
+            float x0, y0;
+            if (!tr.node_overlaps(nd, seg, x0, y0)) continue;
+            if (nd.level > 0) {
+                tr.push_children(nd, stack);
+                continue;
+            }
+            CellPatch cell;
+            float th;
+            if (!tr.leaf_root(nd, x0, y0, cell, th)) continue;
+            if constexpr (!AnyHit) tr.record_hit(cell, x0, y0, th, *hit);
+            return true;
+        }
+        if (t_tile1 >= double(tr.tmax)) break;
+        t_tile0 = t_tile1;
+        tr.step_tile(walk);
     }
     return false;
 }

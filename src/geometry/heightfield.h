@@ -69,6 +69,8 @@ private:
     std::vector<float> m_heights;  ///< (m_w) x (m_h) vertex heights
     std::vector<Level> m_levels;   ///< level 0: one node per cell; level k: 2^k x 2^k cells
 
+    /// The ray of one traverse() call and its steps (heightfield.cpp).
+    struct Traversal;
     template <bool AnyHit>
     bool traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit *hit, int64_t ox, int64_t oy) const;
 };

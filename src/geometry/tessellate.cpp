@@ -144,18 +144,21 @@ int auto_tessellation_level(const TriangleMesh &base, const Displacement &d) {
     return auto_level(base, weld(base), d);
 }
 
-TriangleMesh tessellate_displaced(const TriangleMesh &base, const Displacement &d, const std::string &where) {
+namespace {
+
+/// Throws unless the base mesh can be displaced: valid, with finite uvs and a height map.
+void check_displacement_input(const TriangleMesh &base, const Displacement &d, const std::string &where) {
     base.validate(where);
     if (!d.field) throw MesoError(fmt::format("{}: displacement has no height map", where));
     if (base.uvs.empty()) throw MesoError(fmt::format("{}: displacement needs uv coordinates (the mesh has none)", where));
     for (const Vec2 &uv : base.uvs)
         if (!std::isfinite(uv.x) || !std::isfinite(uv.y))
             throw MesoError(fmt::format("{}: displacement: the mesh has a non-finite uv coordinate", where));
+}
 
-    const WeldedMesh w = weld(base);
-    const size_t nfaces = w.faces.size() / 3;
-    const int level = d.level >= 0 ? d.level : auto_level(base, w, d);
-    const size_t ntris = count_triangles(nfaces, level);
+/// Throws, before anything is refined, when `level` would make more triangles than the
+/// user allows, than OpenSubdiv refines to, or than meso can index.
+void check_triangle_budget(int level, size_t ntris, const Displacement &d, const std::string &where) {
     const char *advice = "use \"mode\": \"shell\" (exact, memory independent of resolution) or raise --max-triangles";
     if (ntris > d.max_triangles)
         throw MesoError(fmt::format("{}: displacement: tessellating to level {} would make {} triangles, more than "
@@ -171,12 +174,18 @@ TriangleMesh tessellate_displaced(const TriangleMesh &base, const Displacement &
                                     "meso can index (2^31); use \"mode\": \"shell\" (exact, memory independent of "
                                     "resolution)",
                                     where, level, ntris));
-    TriangleMesh out;
-    if (nfaces == 0) return out;
+}
 
-    const bool catmark = d.scheme == SubdivScheme::CatmullClark;
+/// The base mesh as OpenSubdiv's input: welded topology, vertex and face-varying values.
+struct BasePrimvars {
+    std::vector<VertexPrimvar> verts;       ///< per welded vertex
+    std::vector<FVarPrimvar> fvar;          ///< per used base vertex, in order of first use
+    std::vector<Far::Index> face_verts;     ///< 3 welded vertices per kept face
+    std::vector<Far::Index> face_fvars;     ///< 3 face-varying values per kept face
+};
+
+BasePrimvars base_primvars(const TriangleMesh &base, const WeldedMesh &w) {
     const size_t nwelded = w.positions.size();
-
     // Area-weighted normals over the welded topology (shared with the shell map).
     std::vector<Vec3> geometric(nwelded);
     {
@@ -192,43 +201,50 @@ TriangleMesh tessellate_displaced(const TriangleMesh &base, const Displacement &
     };
 
     // Face-varying values: the base vertices the kept faces use, in order of first use.
+    BasePrimvars b;
     std::vector<int> fvar_of(base.positions.size(), -1);
-    std::vector<FVarPrimvar> fvar;
-    std::vector<Far::Index> face_verts(w.faces.size()), face_fvars(w.faces.size());
+    b.face_verts.resize(w.faces.size());
+    b.face_fvars.resize(w.faces.size());
     for (size_t i = 0; i < w.faces.size(); ++i) {
         uint32_t v = w.faces[i];
         if (fvar_of[v] < 0) {
-            fvar_of[v] = int(fvar.size());
-            fvar.push_back({base.uvs[v], base_normal(v)});
+            fvar_of[v] = int(b.fvar.size());
+            b.fvar.push_back({base.uvs[v], base_normal(v)});
         }
-        face_verts[i] = Far::Index(w.vertex_of[v]);
-        face_fvars[i] = fvar_of[v];
+        b.face_verts[i] = Far::Index(w.vertex_of[v]);
+        b.face_fvars[i] = fvar_of[v];
     }
     // Vertex values: welded positions and a welded normal (the mean of the base normals
     // there; only orients the Catmull-Clark limit normal).
-    std::vector<VertexPrimvar> verts(nwelded);
-    for (size_t v = 0; v < nwelded; ++v) verts[v].p = w.positions[v];
+    b.verts.resize(nwelded);
+    for (size_t v = 0; v < nwelded; ++v) b.verts[v].p = w.positions[v];
     if (!base.normals.empty()) {
         std::vector<Vec3> sum(nwelded);
         for (size_t v = 0; v < base.positions.size(); ++v)
-            if (fvar_of[v] >= 0) sum[w.vertex_of[v]] += fvar[size_t(fvar_of[v])].n;
+            if (fvar_of[v] >= 0) sum[w.vertex_of[v]] += b.fvar[size_t(fvar_of[v])].n;
         for (size_t v = 0; v < nwelded; ++v) {
             Vec3 n = normalize(sum[v]);
-            verts[v].n = length_squared(n) > 0.f ? n : geometric[v];
+            b.verts[v].n = length_squared(n) > 0.f ? n : geometric[v];
         }
     } else {
-        for (size_t v = 0; v < nwelded; ++v) verts[v].n = geometric[v];
+        for (size_t v = 0; v < nwelded; ++v) b.verts[v].n = geometric[v];
     }
+    return b;
+}
 
+/// OpenSubdiv's refiner for the welded triangles, uniformly refined to `level`.
+std::unique_ptr<Far::TopologyRefiner> refine_topology(const BasePrimvars &b, size_t nwelded, bool catmark, int level,
+                                                      const std::string &where) {
+    const size_t nfaces = b.face_verts.size() / 3;
     std::vector<int> verts_per_face(nfaces, 3);
     Far::TopologyDescriptor desc;
     desc.numVertices = int(nwelded);
     desc.numFaces = int(nfaces);
     desc.numVertsPerFace = verts_per_face.data();
-    desc.vertIndicesPerFace = face_verts.data();
+    desc.vertIndicesPerFace = b.face_verts.data();
     Far::TopologyDescriptor::FVarChannel channel;
-    channel.numValues = int(fvar.size());
-    channel.valueIndices = face_fvars.data();
+    channel.numValues = int(b.fvar.size());
+    channel.valueIndices = b.face_fvars.data();
     desc.numFVarChannels = 1;
     desc.fvarChannels = &channel;
 
@@ -244,47 +260,55 @@ TriangleMesh tessellate_displaced(const TriangleMesh &base, const Displacement &
         opts.fullTopologyInLastLevel = catmark;  // the limit masks need the last level's edges
         refiner->RefineUniform(opts);
     }
+    return refiner;
+}
 
-    // Refine the primvars level by level, keeping only the last two levels.
-    Far::PrimvarRefiner primvars(*refiner);
+/// Refines the primvars level by level, keeping only the last two levels.
+void refine_primvars(const Far::PrimvarRefiner &primvars, const Far::TopologyRefiner &refiner, int level,
+                     BasePrimvars &b) {
     for (int l = 1; l <= level; ++l) {
-        const Far::TopologyLevel &tl = refiner->GetLevel(l);
+        const Far::TopologyLevel &tl = refiner.GetLevel(l);
         std::vector<VertexPrimvar> vnext(size_t(tl.GetNumVertices()));
-        primvars.Interpolate(l, verts, vnext);
-        verts.swap(vnext);
+        primvars.Interpolate(l, b.verts, vnext);
+        b.verts.swap(vnext);
         std::vector<FVarPrimvar> fnext(size_t(tl.GetNumFVarValues(0)));
-        primvars.InterpolateFaceVarying(l, fvar, fnext, 0);
-        fvar.swap(fnext);
+        primvars.InterpolateFaceVarying(l, b.fvar, fnext, 0);
+        b.fvar.swap(fnext);
     }
+}
 
-    // Per refined vertex: the point P and direction N it is displaced from and along.
-    std::vector<Vec3> limit_p, limit_n;
-    if (catmark) {
-        const size_t n = verts.size();
-        std::vector<LimitPrimvar> pos(n), du(n), dv(n);
-        primvars.Limit(verts, pos, du, dv);
-        limit_p.resize(n);
-        limit_n.resize(n);
-        for (size_t v = 0; v < n; ++v) {
-            limit_p[v] = is_finite(pos[v].v) ? pos[v].v : verts[v].p;
-            Vec3 nrm = normalize(cross(du[v].v, dv[v].v));
-            Vec3 ref = normalize(verts[v].n);
-            if (!is_finite(nrm) || length_squared(nrm) == 0.f) nrm = ref;  // degenerate tangents
-            else if (dot(nrm, ref) < 0.f) nrm = -nrm;
-            limit_n[v] = is_finite(nrm) ? nrm : Vec3();
-        }
-        std::vector<VertexPrimvar>().swap(verts);  // P and N now live in limit_p / limit_n
+/// Catmull-Clark: per refined vertex, the limit position P and the unit limit normal N
+/// (cross product of the limit tangents, oriented like the welded base normal).
+void limit_surface(const Far::PrimvarRefiner &primvars, const std::vector<VertexPrimvar> &verts,
+                   std::vector<Vec3> &limit_p, std::vector<Vec3> &limit_n) {
+    const size_t n = verts.size();
+    std::vector<LimitPrimvar> pos(n), du(n), dv(n);
+    primvars.Limit(verts, pos, du, dv);
+    limit_p.resize(n);
+    limit_n.resize(n);
+    for (size_t v = 0; v < n; ++v) {
+        limit_p[v] = is_finite(pos[v].v) ? pos[v].v : verts[v].p;
+        Vec3 nrm = normalize(cross(du[v].v, dv[v].v));
+        Vec3 ref = normalize(verts[v].n);
+        if (!is_finite(nrm) || length_squared(nrm) == 0.f) nrm = ref;  // degenerate tangents
+        else if (dot(nrm, ref) < 0.f) nrm = -nrm;
+        limit_n[v] = is_finite(nrm) ? nrm : Vec3();
     }
+}
 
-    // One output vertex per face-varying value (a seam vertex is split, each side keeping
-    // its uv), numbered in order of first use; quads split along their 0-2 diagonal.
-    const Far::TopologyLevel &last = refiner->GetLevel(level);
+/// Output topology of the last level: one output vertex per face-varying value (a seam
+/// vertex is split, each side keeping its uv), numbered in order of first use; quads split
+/// along their 0-2 diagonal. Per output vertex: its face-varying value and refined vertex.
+struct OutputTopology {
+    std::vector<uint32_t> fv_of_out, vertex_of_out;
+};
+
+OutputTopology output_triangles(const Far::TopologyLevel &last, size_t nfvar, size_t ntris, TriangleMesh &out) {
     const int nlast = last.GetNumFaces();
-    std::vector<uint32_t> out_of(fvar.size(), UINT32_MAX);
-    std::vector<uint32_t> vertex_of_out;
-    vertex_of_out.reserve(fvar.size());
-    std::vector<uint32_t> fv_of_out;
-    fv_of_out.reserve(fvar.size());
+    std::vector<uint32_t> out_of(nfvar, UINT32_MAX);
+    OutputTopology t;
+    t.vertex_of_out.reserve(nfvar);
+    t.fv_of_out.reserve(nfvar);
     out.indices.reserve(ntris * 3);
     for (int f = 0; f < nlast; ++f) {
         Far::ConstIndexArray fv = last.GetFaceVertices(f), ff = last.GetFaceFVarValues(f, 0);
@@ -293,27 +317,54 @@ TriangleMesh tessellate_displaced(const TriangleMesh &base, const Displacement &
         for (int k = 0; k < n; ++k) {
             uint32_t &o = out_of[size_t(ff[k])];
             if (o == UINT32_MAX) {
-                o = uint32_t(fv_of_out.size());
-                fv_of_out.push_back(uint32_t(ff[k]));
-                vertex_of_out.push_back(uint32_t(fv[k]));
+                o = uint32_t(t.fv_of_out.size());
+                t.fv_of_out.push_back(uint32_t(ff[k]));
+                t.vertex_of_out.push_back(uint32_t(fv[k]));
             }
             idx[k] = o;
         }
         for (int k = 2; k < n; ++k) out.indices.insert(out.indices.end(), {idx[0], idx[k - 1], idx[k]});
     }
-    std::vector<uint32_t>().swap(out_of);
+    return t;
+}
 
-    const size_t nout = fv_of_out.size();
+}  // namespace
+
+TriangleMesh tessellate_displaced(const TriangleMesh &base, const Displacement &d, const std::string &where) {
+    check_displacement_input(base, d, where);
+    const WeldedMesh w = weld(base);
+    const size_t nfaces = w.faces.size() / 3;
+    const int level = d.level >= 0 ? d.level : auto_level(base, w, d);
+    const size_t ntris = count_triangles(nfaces, level);
+    check_triangle_budget(level, ntris, d, where);
+    TriangleMesh out;
+    if (nfaces == 0) return out;
+
+    const bool catmark = d.scheme == SubdivScheme::CatmullClark;
+    BasePrimvars b = base_primvars(base, w);
+    std::unique_ptr<Far::TopologyRefiner> refiner = refine_topology(b, w.positions.size(), catmark, level, where);
+    Far::PrimvarRefiner primvars(*refiner);
+    refine_primvars(primvars, *refiner, level, b);
+
+    // Per refined vertex: the point P and direction N it is displaced from and along.
+    std::vector<Vec3> limit_p, limit_n;
+    if (catmark) {
+        limit_surface(primvars, b.verts, limit_p, limit_n);
+        std::vector<VertexPrimvar>().swap(b.verts);  // P and N now live in limit_p / limit_n
+    }
+
+    const OutputTopology t = output_triangles(refiner->GetLevel(level), b.fvar.size(), ntris, out);
+    const size_t nout = t.fv_of_out.size();
     out.positions.resize(nout);
     out.uvs.resize(nout);
     for (size_t o = 0; o < nout; ++o) {
-        const FVarPrimvar &fv = fvar[fv_of_out[o]];
-        const uint32_t v = vertex_of_out[o];
+        const FVarPrimvar &fv = b.fvar[t.fv_of_out[o]];
+        const uint32_t v = t.vertex_of_out[o];
         const float h = d.height_at(fv.uv);
         // Bilinear: P and N interpolated linearly, N not renormalised (the shell map's
         // offset surface). Catmull-Clark: limit position and unit limit normal.
-        Vec3 p = catmark ? limit_p[v] + h * limit_n[v] : verts[v].p + h * fv.n;
-        out.positions[o] = is_finite(p) ? p : (catmark ? limit_p[v] : verts[v].p);
+        Vec3 p = catmark ? limit_p[v] + h * limit_n[v] : b.verts[v].p + h * fv.n;
+        out.positions[o] = is_finite(p) ? p : (catmark ? limit_p[v] : b.verts[v].p);
         out.uvs[o] = fv.uv;
     }
     return out;
