@@ -326,9 +326,7 @@ void parse_grid(const Properties &p, Vmf::Config &c, TexelInputs &t) {
             p.fail("tiling", "expected a number or [repeats_u, repeats_v] in (0, 1e6]");
         c.tu = tl[0], c.tv = tl[1];
     }
-    c.filter = p.get_enum<FootprintFilter>(
-        "filter", "trilinear",
-        {{"trilinear", FootprintFilter::Trilinear}, {"ewa", FootprintFilter::Ewa}, {"none", FootprintFilter::None}});
+    c.filter = parse_footprint_filter(p, "filter");
     c.max_aniso = p.get_float("max_anisotropy", 8.f);
     if (!(c.max_aniso >= 1.f) || !std::isfinite(c.max_aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
 }
