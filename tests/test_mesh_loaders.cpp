@@ -156,6 +156,16 @@ TEST(MeshLoaders, InvalidFacesDroppedWithOneWarning) {
                                  "1 with a repeated vertex index");
     expect_facing_up(d.mesh, 1.f);
 
+    // OBJ: tinyobjloader would read these as 0; a word is an error naming the line, NaN is dropped.
+    std::string word = test::write_temp("mesh_word.obj", "v 0 0 0\nv 1 abc 0\nv 0 1 0\nf 1 2 3\n");
+    EXPECT_EQ(error_of([&] { load_obj_mesh(word); }), word + ": line 2: expected a number, got 'abc'");
+    std::string nan = test::write_temp("mesh_nan.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 nan 0\nf 1 2 3\nf 1 3 4\n");
+    MeshFile on = load_obj_mesh(nan);
+    EXPECT_EQ(on.mesh.triangle_count(), 1u);
+    EXPECT_EQ(on.mesh.vertex_count(), 3u);
+    ASSERT_EQ(on.warnings.size(), 1u);
+    EXPECT_EQ(on.warnings[0], nan + ": dropped 1 of 2 triangles: 1 with a NaN or infinite vertex position");
+
     // Nothing left: refused.
     std::string none = test::write_temp("mesh_all_bad.obj", "v 0 0 0\nv 1 0 0\nf 1 2 2\n");
     EXPECT_EQ(error_of([&] { load_obj_mesh(none); }), none + ": no valid triangles (1 faces read)");

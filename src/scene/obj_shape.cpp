@@ -10,10 +10,16 @@
 // colours, ignored with a warning: meso meshes carry no vertex colour). Faces of more than
 // 3 vertices are fan-triangulated (exact for convex polygons). Without `vn` (or when only
 // some face vertices have one), smooth normals are computed over the shared positions, as
-// Mitsuba does, unless face_normals. uvs are kept as stored (v = 0 is the top row of a
-// `bitmap`). `mtllib`/`usemtl` are ignored: the shape's material comes from the scene.
+// Mitsuba does, unless face_normals. A token that is not a number on a v/vt/vn line is an
+// error naming the line; a NaN or infinite position drops its triangles. uvs are kept as
+// stored (v = 0 is the top row of a `bitmap`). `mtllib`/`usemtl` are ignored: the shape's material comes from the scene.
+#include <cctype>
+#include <charconv>
+#include <cmath>
 #include <fmt/format.h>
 #include <fstream>
+#include <limits>
+#include <sstream>
 #include <tiny_obj_loader.h>
 #include "core/error.h"
 #include "core/properties.h"
@@ -126,23 +132,63 @@ MeshFile build_mesh(const tinyobj::attrib_t &attrib, const std::vector<tinyobj::
     return m;
 }
 
+/// tinyobjloader reads a token that is not a number as 0 and cannot read NaN: `v`, `vt` and
+/// `vn` lines are checked here first (an error names the line), and the `v` lines with a NaN
+/// or infinite coordinate are listed (their triangles are dropped).
+std::vector<size_t> check_obj_numbers(const std::string &data, const std::string &file) {
+    std::vector<size_t> not_finite;
+    size_t pos = 0, line = 0, vertex = 0;
+    while (pos < data.size()) {
+        size_t end = data.find('\n', pos);
+        if (end == std::string::npos) end = data.size();
+        ++line;
+        const char *p = data.data() + pos, *e = data.data() + end;
+        pos = end + 1;
+        while (p < e && (*p == ' ' || *p == '\t')) ++p;
+        if (e - p < 2 || p[0] != 'v') continue;
+        const bool is_v = p[1] == ' ' || p[1] == '\t';
+        if (!is_v && !((p[1] == 't' || p[1] == 'n') && e - p > 2 && (p[2] == ' ' || p[2] == '\t'))) continue;
+        p += is_v ? 1 : 2;
+        bool finite = true;
+        for (int k = 0;; ++k) {
+            while (p < e && std::isspace((unsigned char)*p)) ++p;
+            if (p == e || *p == '#') break;
+            const char *t = p;
+            while (p < e && !std::isspace((unsigned char)*p)) ++p;
+            double v;
+            auto r = std::from_chars(t + (*t == '+'), p, v);
+            if (r.ptr != p || r.ec == std::errc::invalid_argument)
+                throw MesoError(fmt::format("{}: line {}: expected a number, got '{}'", file, line, std::string(t, p)));
+            if (k < 3 && (r.ec != std::errc() || !std::isfinite(v))) finite = false;
+        }
+        if (is_v && !finite) not_finite.push_back(vertex);
+        vertex += is_v;
+    }
+    return not_finite;
+}
+
 }  // namespace
 
 MeshFile load_obj_mesh(const std::string &file) {
     std::ifstream in(file, std::ios::binary);
     if (!in) throw MesoError(fmt::format("{}: cannot open the OBJ file", file));
+    std::stringstream text;
+    text << in.rdbuf();
+    const std::vector<size_t> not_finite = check_obj_numbers(text.str(), file);
     tinyobj::attrib_t attrib;
     std::vector<tinyobj::shape_t> shapes;
     std::vector<tinyobj::material_t> materials;
     std::string warn, err;
     // No material reader: mtllib lines are skipped. No triangulation: faces are fanned here.
-    bool ok = tinyobj::LoadObj(&attrib, &shapes, &materials, &warn, &err, &in, nullptr, false, false);
+    bool ok = tinyobj::LoadObj(&attrib, &shapes, &materials, &warn, &err, &text, nullptr, false, false);
     auto trim = [](std::string s) {
         while (!s.empty() && (s.back() == '\n' || s.back() == '\r')) s.pop_back();
         return s;
     };
     // tinyobjloader names the line ("Failed parse `f' line(e.g. zero value for face index. line 6.)").
     if (!ok) throw MesoError(fmt::format("{}: {}", file, err.empty() ? std::string("not a readable OBJ file") : trim(err)));
+    for (size_t v : not_finite)
+        if (3 * v < attrib.vertices.size()) attrib.vertices[3 * v] = std::numeric_limits<tinyobj::real_t>::quiet_NaN();
     MeshFile m = build_mesh(attrib, shapes);
     if (!attrib.colors.empty() && attrib.colors.size() == attrib.vertices.size() && m.faces > 0) {
         bool all_white = true;
