@@ -344,15 +344,24 @@ private:
     Spectrum value(const ShadingContext &ctx, const Point &pt, const Vec3 &wo, const Vec3 &wi, double G) const {
         Spectrum v(0.f);
         if (m_p.has_spec) {
+            // h must face wo (chi+(wo . h), as the pdf's wo . h > 0): at grazing wo a float wi
+            // near the mirror direction leaves h = normalize(wo + wi) with ~1e-4 of rounding
+            // in its tangent part, enough to tip wo . h <= 0 under a narrow lobe (issue 24).
             const Vec3 h = normalize(wo + wi);
-            const double s = pt.g->D(h) * G / (4.0 * pt.area);
+            const double s = dot(wo, h) > 0.f ? pt.g->D(h) * G / (4.0 * pt.area) : 0.0;
             if (std::isfinite(s) && s > 0.0)
                 v += fresnel_conductor(dot(wi, h), m_p.eta, m_p.k) * m_p.ks->eval(ctx) * float(s);
         }
         if (m_p.has_diffuse) {
-            const double I = m_const ? m_grid.integral(wo, wi)
-                                     : leadr_diffuse_slope_integral(*pt.g, m_p.diffuse_n, wo, wi);
-            const double d = I * G / (3.14159265358979323846 * pt.area);
+            double Q = 0;  // the grid's projected area: exactly area (1 + Lambda(wo)) in the limit
+            const double I = m_const ? m_grid.integral(wo, wi, &Q)
+                                     : leadr_diffuse_slope_integral(*pt.g, m_p.diffuse_n, wo, wi, &Q);
+            // Albedo <= rho needs Q <= area (1 + Lambda(wo)) (G <= 1/(1 + Lambda(wo)) and
+            // int <m, wi> dwi <= pi per facet); the N x N grid overestimates Q at grazing wo
+            // (+1.5% at alpha 0.01, theta_o 89.99 degrees: issue 24), so I is scaled down there.
+            const double Q_exact = pt.area * (1.0 + pt.lo);
+            const double scale = Q > Q_exact ? Q_exact / Q : 1.0;
+            const double d = I * scale * G / (3.14159265358979323846 * pt.area);
             if (std::isfinite(d) && d > 0.0) v += m_p.kd->eval(ctx) * float(d);
         }
         return v;

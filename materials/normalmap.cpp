@@ -77,7 +77,16 @@ public:
         out.wi = normalize(F.to_world(out.wi));
         if (!is_finite(out.wi)) return false;
         if (m_reflect_only && !(out.wi.z > 0.f)) return false;
-        return true;
+        if ((out.flags & BSDF_Delta) || ctx.u_eval >= 0.f) return true;  // (stochastic nested: its estimates)
+        // Value and pdf again at the returned direction: the frame round trip (to_world here,
+        // to_local in pdf()) moves wi by ~1e-7, which a narrow nested lobe (alpha 1e-3) or a
+        // grazing perturbed frame turns into pdf differences of 1e-4 .. 1e-2 (issue 24).
+        float p = 0.f;
+        const Spectrum v = eval_pdf(ctx, wo, out.wi, &p);
+        if (!(p > 0.f) || !std::isfinite(p)) return false;
+        out.pdf = p;
+        out.weight = v / p;
+        return out.weight.is_finite();
     }
 
     Spectrum albedo_hint(const ShadingContext &ctx) const override {

@@ -411,8 +411,10 @@ AlbedoEstimate estimate_albedo(const Material &mat, const ShadingContext &ctx, c
         Vec2 u(rng.next_float(), rng.next_float());
         BSDFSample bs;
         if (!mat.sample(ctx, wo, u_lobe, u, bs)) continue;
+        // flux, not radiance: undo the (η_o/η_i)² radiance scaling of a refracted sample
+        const double k = (bs.flags & BSDF_Transmission) ? double(bs.eta) * bs.eta : 1.0;
         for (int c = 0; c < 3; ++c) {
-            double w = bs.weight[c];
+            double w = bs.weight[c] * k;
             sum[c] += w;
             sum2[c] += w * w;
         }

@@ -70,7 +70,10 @@ struct AlbedoEstimate {
     Spectrum stderr_;  ///< sample standard deviation / sqrt(N)
     uint64_t samples = 0;
 };
-/// Directional albedo ∫ f |cos θi| dωi estimated with the material's own sampler.
+/// Directional albedo ∫ f |cos θi| dωi estimated with the material's own sampler, in flux
+/// units: a refracted sample's weight is multiplied by BSDFSample::eta², undoing the radiance
+/// scaling (η_o/η_i)² of transmission (material.h, dielectric.cpp), so that the albedo is the
+/// fraction of energy scattered (<= 1 for every energy-conserving material, from either side).
 AlbedoEstimate estimate_albedo(const Material &material, const ShadingContext &ctx, const Vec3 &wo,
                                uint64_t samples, uint64_t seed);
 

@@ -35,30 +35,35 @@ const LeadrGrid1D &leadr_grid_1d(int n) {
     return grids[std::clamp(n, 1, kLeadrMaxGrid)];
 }
 
-double leadr_diffuse_slope_integral(const GaussianSlopes &g, int n, const Vec3 &wo, const Vec3 &wi) {
+double leadr_diffuse_slope_integral(const GaussianSlopes &g, int n, const Vec3 &wo, const Vec3 &wi,
+                                    double *visible_area) {
     const double ox = wo.x, oy = wo.y, oz = wo.z, ix = wi.x, iy = wi.y, iz = wi.z;
-    double sum = 0;
+    double sum = 0, area = 0;
     for_each_leadr_slope(g.params(), n, [&](double x, double y, double W) {
         const double a = oz - x * ox - y * oy, b = iz - x * ix - y * iy;
+        if (a > 0.0) area += W * a;
         if (a > 0.0 && b > 0.0) sum += W * a * b / std::sqrt(1.0 + x * x + y * y);
     });
+    if (visible_area) *visible_area = area;
     return std::isfinite(sum) ? sum : 0.0;
 }
 
 LeadrDiffuseGrid::LeadrDiffuseGrid(const GaussianSlopes &g, int n) {
     m_pts.reserve(size_t(n) * n);
     for_each_leadr_slope(g.params(), n, [&](double x, double y, double W) {
-        m_pts.push_back({x, y, W / std::sqrt(1.0 + x * x + y * y)});
+        m_pts.push_back({x, y, W / std::sqrt(1.0 + x * x + y * y), W});
     });
 }
 
-double LeadrDiffuseGrid::integral(const Vec3 &wo, const Vec3 &wi) const {
+double LeadrDiffuseGrid::integral(const Vec3 &wo, const Vec3 &wi, double *visible_area) const {
     const double ox = wo.x, oy = wo.y, oz = wo.z, ix = wi.x, iy = wi.y, iz = wi.z;
-    double sum = 0;
+    double sum = 0, area = 0;
     for (const auto &p : m_pts) {
         const double a = oz - p[0] * ox - p[1] * oy, b = iz - p[0] * ix - p[1] * iy;
+        if (a > 0.0) area += p[3] * a;
         if (a > 0.0 && b > 0.0) sum += p[2] * a * b;
     }
+    if (visible_area) *visible_area = area;
     return std::isfinite(sum) ? sum : 0.0;
 }
 

@@ -115,19 +115,22 @@ inline Vec3 leadr_slope_normal(double x, double y) {
 ///   int <w_n, wo> <w_n, wi> / (w_n . w_g) P22(s) ds
 ///   = int max(0, wo.z - s.wo_xy) max(0, wi.z - s.wi_xy) / sqrt(1 + |s|^2) P22(s) ds
 /// on the N x N grid. Finite for any input; 0 when either direction is at or below every
-/// grid facet.
-double leadr_diffuse_slope_integral(const GaussianSlopes &g, int n, const Vec3 &wo, const Vec3 &wi);
+/// grid facet. `visible_area`, when given, receives the same grid's estimate of the projected
+/// area int max(0, wo.z - s.wo_xy) P22(s) ds (= area (1 + Lambda(wo)) exactly), which the
+/// material uses to keep the albedo <= rho where the grid overestimates it (grazing wo).
+double leadr_diffuse_slope_integral(const GaussianSlopes &g, int n, const Vec3 &wo, const Vec3 &wi,
+                                    double *visible_area = nullptr);
 
-/// The same integral with the grid precomputed (constant statistics): N^2 x (x, y, W / sqrt(1 + |s|^2)).
+/// The same integral with the grid precomputed (constant statistics): N^2 x (x, y, W / sqrt(1 + |s|^2), W).
 class LeadrDiffuseGrid {
 public:
     LeadrDiffuseGrid() = default;
     LeadrDiffuseGrid(const GaussianSlopes &g, int n);
-    double integral(const Vec3 &wo, const Vec3 &wi) const;
+    double integral(const Vec3 &wo, const Vec3 &wi, double *visible_area = nullptr) const;
     bool empty() const { return m_pts.empty(); }
 
 private:
-    std::vector<std::array<double, 3>> m_pts;
+    std::vector<std::array<double, 4>> m_pts;
 };
 
 enum class LeadrShadowing { Joint, Masking };
