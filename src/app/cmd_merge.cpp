@@ -136,16 +136,20 @@ void check_metadata(const Part &p) {
     }
 }
 
+/// Each EXR's metadata against its record and against the first part's EXR.
+void check_part_metadata(const Part &p, const Part &first) {
+    check_metadata(p);
+    for (const char *k : {"scene_sha1", "defines", "seed", "spp", "full_size"})
+        if (meta_value(p, k) != meta_value(first, k))
+            throw MesoError(fmt::format("{}: the EXR's metadata says {} = {} but {} has {} (the parts must come "
+                                        "from one render)",
+                                        p.exr, k, meta_value(p, k), first.exr, meta_value(first, k)));
+}
+
 /// Throws unless the parts come from the same render, do not overlap and cover the image.
 void check_parts(const std::vector<Part> &parts) {
     const Part &a = parts[0];
     for (const Part &p : parts) {
-        check_metadata(p);
-        for (const char *k : {"scene_sha1", "defines", "seed", "spp", "full_size"})
-            if (meta_value(p, k) != meta_value(a, k))
-                throw MesoError(fmt::format("{}: the EXR's metadata says {} = {} but {} has {} (the parts must come "
-                                            "from one render)",
-                                            p.exr, k, meta_value(p, k), a.exr, meta_value(a, k)));
         if (p.full_w != a.full_w || p.full_h != a.full_h)
             throw MesoError(fmt::format("{}: the full image is {}x{} but {} has {}x{} (the parts must come from one render)",
                                         p.exr, p.full_w, p.full_h, a.exr, a.full_w, a.full_h));
@@ -264,6 +268,7 @@ int run_merge(const MergeArgs &a) {
             throw MesoError(fmt::format("{}: the image is {}x{} but its record's crop {} is {}x{}", p.exr, img.width,
                                         img.height, crop_str(p.crop), w, h));
         if (img.channels != 3) throw MesoError(fmt::format("{}: expected an RGB image, found {} channels", p.exr, img.channels));
+        check_part_metadata(p, parts[0]);
         for (int y = 0; y < h; ++y)
             std::copy_n(&img.at(0, y, 0), size_t(w) * 3, &merged.at(p.crop[0], p.crop[1] + y, 0));
     }

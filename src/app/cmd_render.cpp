@@ -81,6 +81,7 @@ void check_ranges(const RenderArgs &a) {
         throw MesoError(fmt::format("--threads {}: expected 1 to {} (4 x the {} cores)", a.threads, max_threads, max_threads / 4));
     if (!std::isfinite(a.exposure)) throw MesoError(fmt::format("--exposure {}: expected a finite number of stops", a.exposure));
     if (!a.convergence.empty() && a.reference.empty()) throw MesoError("--convergence needs --reference");
+    if (a.has_crop) parse_crop(a.crop);  // its syntax here; the window against the camera once loaded
 }
 
 /// The files a scene names (maps, meshes, models): every string of a JSON scene that resolves,
@@ -174,7 +175,7 @@ void check_memory(const RenderArgs &a, const Loaded &l) {
     for (const auto &s : l.scene->shapes) need += s->memory_bytes();
     const size_t have = physical_memory_bytes();
     if (have > 0 && need > have)
-        throw MesoError(fmt::format("{}: the render needs about {:.0f} MB ({}x{} film and geometry, as `meso render --plan` "
+        throw MesoError(fmt::format("{}: the render needs about {:.2f} MB ({}x{} film and geometry, as `meso render --plan` "
                                     "lists it) but this machine has {:.0f} MB of physical memory",
                                     a.scene, need / 1048576.0, l.img_w, l.img_h, have / 1048576.0));
 }
