@@ -3,6 +3,7 @@
 // MesoError a call throws into its message.
 #pragma once
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 #include <cstdio>
 #include <functional>
 #include <string>
@@ -28,6 +29,20 @@ inline CliResult run_cli_captured(std::vector<std::string> args) {
     std::fflush(stdout);
     std::fflush(stderr);
     CliResult r{code, testing::internal::GetCapturedStdout(), testing::internal::GetCapturedStderr()};
+    return r;
+}
+
+/// Runs the meso binary (MESO_BINARY) through the shell as `meso ARGS 2>&1`, in directory `cwd` if
+/// given; `out` holds stdout and stderr together. For what must run in its own process (signals,
+/// the current directory, the real exit code).
+inline CliResult run_binary(const std::string &args, const std::string &cwd = "") {
+    const std::string cmd = (cwd.empty() ? std::string() : "cd '" + cwd + "' && ") + MESO_BINARY + " " + args + " 2>&1";
+    CliResult r{0, "", ""};
+    FILE *p = popen(cmd.c_str(), "r");
+    char buf[4096];
+    while (size_t n = fread(buf, 1, sizeof(buf), p)) r.out.append(buf, n);
+    const int st = pclose(p);
+    r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
     return r;
 }
 

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <sstream>
 #include <nlohmann/json.hpp>
+#include "cli_capture.h"
 #include "render_test_util.h"
 
 namespace fs = std::filesystem;
@@ -14,21 +15,9 @@ using namespace meso::test;
 
 namespace {
 
-struct CmdResult {
-    int code;
-    std::string out;
-};
+using CmdResult = CliResult;
 
-CmdResult run(const std::string &args) {
-    std::string cmd = std::string(MESO_BINARY) + " " + args + " 2>&1";
-    CmdResult r{0, ""};
-    FILE *p = popen(cmd.c_str(), "r");
-    char buf[4096];
-    while (size_t n = fread(buf, 1, sizeof(buf), p)) r.out.append(buf, n);
-    int st = pclose(p);
-    r.code = WIFEXITED(st) ? WEXITSTATUS(st) : -1;
-    return r;
-}
+CmdResult run(const std::string &args) { return run_binary(args); }
 
 fs::path fresh_dir(const std::string &name) {
     fs::path d = fs::temp_directory_path() / "meso_cli" / name;

@@ -18,6 +18,7 @@
 #include <string>
 #include "app/commands.h"
 #include "core/error.h"
+#include "core/output_set.h"
 #include "image/false_colour.h"
 #include "image/image.h"
 
@@ -43,7 +44,7 @@ struct ErrorImageInfo {
     double log_lo = 0, log_hi = 0;
 };
 
-ErrorImageInfo write_error_image(const CompareOptions &o, const Image &test, const Image &ref) {
+ErrorImageInfo write_error_image(const CompareOptions &o, const std::string &staged, const Image &test, const Image &ref) {
     ErrorImageInfo info;
     info.path = o.error_image;
     std::vector<double> e(size_t(test.width) * test.height);
@@ -58,7 +59,7 @@ ErrorImageInfo write_error_image(const CompareOptions &o, const Image &test, con
     if (ends_with_exr(o.error_image)) {
         Image img(test.width, test.height, 1);
         for (size_t i = 0; i < e.size(); ++i) img.data[i] = float(e[i]);
-        write_exr(o.error_image, img);
+        write_exr(staged, img);
         return info;
     }
     info.log_map = true;
@@ -74,15 +75,24 @@ ErrorImageInfo write_error_image(const CompareOptions &o, const Image &test, con
     } else {
         info.log_lo = -8.0, info.log_hi = 0.0;  // no error anywhere: all pixels get the bottom colour
     }
-    write_png(o.error_image, false_colour_log(e, test.width, test.height, info.log_lo, info.log_hi));
+    write_png(staged, false_colour_log(e, test.width, test.height, info.log_lo, info.log_hi));
     return info;
 }
 
 int run_compare(const CompareOptions &o) {
+    // The error image may not replace either input; it is checked before anything is read.
+    OutputSet set;
+    set.add_input(o.test, "the test image");
+    set.add_input(o.ref, "the reference");
+    const std::string staged = o.error_image.empty() ? "" : set.add_output("--error-image", o.error_image);
+    set.check();
     Image test = read_image(o.test), ref = read_image(o.ref);
     ImageMetrics m = compute_metrics(test, ref);  // checks the sizes first
     ErrorImageInfo err;
-    if (!o.error_image.empty()) err = write_error_image(o, test, ref);
+    if (!o.error_image.empty()) {
+        err = write_error_image(o, staged, test, ref);
+        set.commit();
+    }
 
     if (o.json) {
         nlohmann::json j;

@@ -8,12 +8,14 @@
 //         first as the format requires: scripts read it with numpy alone (no EXR library),
 //         e.g. scripts/leadr_groundtruth.
 #include <CLI/CLI.hpp>
+#include <cmath>
 #include <cstdio>
 #include <fmt/format.h>
 #include <memory>
 #include <string>
 #include "app/commands.h"
 #include "core/error.h"
+#include "core/output_set.h"
 #include "image/image.h"
 
 namespace meso {
@@ -32,10 +34,10 @@ std::string lower_extension(const std::string &p) {
     return e;
 }
 
+/// Writes `path` directly: it is the output's staging file (core/output_set.h), renamed into place after.
 void write_pfm(const std::string &path, const Image &img) {
     const bool grey = img.channels == 1;
-    const std::string tmp = path + ".tmp";
-    FILE *f = std::fopen(tmp.c_str(), "wb");
+    FILE *f = std::fopen(path.c_str(), "wb");
     if (!f) throw MesoError(fmt::format("{}: cannot write image", path));
     std::fprintf(f, "%s\n%d %d\n-1.0\n", grey ? "Pf" : "PF", img.width, img.height);
     std::vector<float> row(size_t(img.width) * (grey ? 1 : 3));
@@ -52,8 +54,8 @@ void write_pfm(const std::string &path, const Image &img) {
         ok = std::fwrite(row.data(), sizeof(float), row.size(), f) == row.size();
     }
     ok = (std::fclose(f) == 0) && ok;
-    if (!ok || std::rename(tmp.c_str(), path.c_str()) != 0) {
-        std::remove(tmp.c_str());
+    if (!ok) {
+        std::remove(path.c_str());
         throw MesoError(fmt::format("{}: cannot write image", path));
     }
 }
@@ -62,10 +64,16 @@ int run_convert(const ConvertOptions &o) {
     const std::string ext = lower_extension(o.out);
     if (ext != ".exr" && ext != ".png" && ext != ".pfm")
         throw MesoError(fmt::format("{}: unsupported output format '{}' (expected .exr, .png or .pfm)", o.out, ext));
+    if (!std::isfinite(o.exposure)) throw MesoError(fmt::format("--exposure {}: expected a finite number of stops", o.exposure));
+    OutputSet set;
+    set.add_input(o.in, "the input image");
+    const std::string staged = set.add_output("output", o.out);
+    set.check();
     Image img = read_image(o.in);
-    if (ext == ".exr") write_exr(o.out, img);
-    else if (ext == ".png") write_png(o.out, img, o.exposure);
-    else write_pfm(o.out, img);
+    if (ext == ".exr") write_exr(staged, img, read_image_metadata(o.in));  // provenance kept
+    else if (ext == ".png") write_png(staged, img, o.exposure);
+    else write_pfm(staged, img);
+    set.commit();
     return 0;
 }
 

@@ -18,6 +18,8 @@
 #include "app/commands.h"
 #include "core/text_file.h"
 #include "core/error.h"
+#include "core/interrupt.h"
+#include "core/output_set.h"
 #include "geometry/heightmap_gen.h"
 #include "meso_version.h"
 
@@ -40,15 +42,14 @@ std::string lower_extension(const std::string &path) {
     return e;
 }
 
-/// Checks an output path before any work: a known extension and an existing directory.
-void check_output(const std::string &option, const std::string &path, std::initializer_list<const char *> exts) {
+/// Checks an output's extension before any work and declares it in `set`; returns its staging path.
+std::string declare_output(OutputSet &set, const std::string &option, const std::string &path,
+                           std::initializer_list<const char *> exts) {
     std::string e = lower_extension(path), list;
     bool ok = false;
     for (const char *x : exts) ok |= e == x, list += (list.empty() ? "" : " or ") + std::string(x);
     if (!ok) throw MesoError(fmt::format("{} {}: expected a {} file", option, path, list));
-    fs::path dir = fs::path(path).parent_path();
-    if (!dir.empty() && !fs::is_directory(dir))
-        throw MesoError(fmt::format("{} {}: directory '{}' does not exist", option, path, dir.string()));
+    return set.add_output(option, path);
 }
 
 void print_list() {
@@ -84,9 +85,15 @@ int run_genmap(const GenmapOptions &o) {
     }
     if (o.kind.empty()) throw MesoError("genmap: expected a generator KIND (see meso genmap --list)");
     if (o.output.empty()) throw MesoError("genmap: -o/--output is required");
-    check_output("-o", o.output, {".exr", ".png"});
-    if (!o.albedo.empty()) check_output("--albedo", o.albedo, {".exr", ".png"});
-    if (!o.preview.empty()) check_output("--preview", o.preview, {".png"});
+    // Every output is checked (and staged) before any work; a record may only replace a record.
+    OutputSet set;
+    const std::string map_tmp = declare_output(set, "-o", o.output, {".exr", ".png"});
+    const std::string json_path = fs::path(o.output).replace_extension(".json").string();
+    const std::string json_tmp = set.add_output("-o", json_path, o.output, OutputKind::Record);
+    const std::string albedo_tmp = o.albedo.empty() ? "" : declare_output(set, "--albedo", o.albedo, {".exr", ".png"});
+    const std::string preview_tmp = o.preview.empty() ? "" : declare_output(set, "--preview", o.preview, {".png"});
+    set.check();
+    install_interrupt_handler(InterruptMode::Immediate);  // Ctrl-C: staged files deleted, exit 130
 
     std::map<std::string, std::string> params;
     for (const std::string &kv : o.params) {
@@ -131,28 +138,28 @@ int run_genmap(const GenmapOptions &o) {
 
     // Everything is checked: write the outputs.
     if (lower_extension(o.output) == ".png") {
-        HeightRange r = write_height_map_png16(o.output, g.height);
+        HeightRange r = write_height_map_png16(map_tmp, g.height);
         rec["format"] = "png16";
         rec["png_range"] = {{"offset", r.lo}, {"scale", double(r.hi) - double(r.lo)}};
     } else {
-        write_height_map(o.output, g.height);
+        write_height_map(map_tmp, g.height);
         rec["format"] = "exr";
     }
     if (!o.albedo.empty()) {
-        if (lower_extension(o.albedo) == ".exr") write_exr(o.albedo, g.albedo);
-        else write_png(o.albedo, g.albedo);
+        if (lower_extension(o.albedo) == ".exr") write_exr(albedo_tmp, g.albedo);
+        else write_png(albedo_tmp, g.albedo);
         rec["albedo"] = o.albedo;
     }
     double exaggeration = 1;
     if (!o.preview.empty()) {
         // Exaggerate gentle maps so their relief shows: rms slope at least 0.5.
         if (st.rms_slope > 0 && st.rms_slope < 0.5) exaggeration = 0.5 / st.rms_slope;
-        write_png(o.preview, shaded_relief(g.height, exaggeration));
+        write_png(preview_tmp, shaded_relief(g.height, exaggeration));
         rec["preview"] = {{"path", o.preview}, {"slope_exaggeration", exaggeration}};
     }
     rec["time_s"] = gen_s;
-    std::string json_path = fs::path(o.output).replace_extension(".json").string();
-    write_record(json_path, rec);
+    write_record(json_tmp, rec);
+    set.commit();
 
     std::printf("%s", fmt::format("genmap {}: {}x{}, min {:.6g}, max {:.6g}, mean {:.6g}, rms slope {:.4g} (per tile), "
                                   "{:.3f} s\n",

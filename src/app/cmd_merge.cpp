@@ -7,7 +7,12 @@
 // exactly: no two overlap, every pixel is in one. The pixels are copied unchanged, so the merge
 // is bit-identical to a full render with the same seed and spp.
 //
-// Writes OUT.exr, OUT.png and OUT.json (each atomically). The record holds the fields common to
+// Each part's EXR metadata (meso:scene_sha1, defines, seed, spp, crop, full_size, written by meso
+// render) must agree with its record and with the other parts: an EXR swapped in from another
+// render is refused, naming the file and the field.
+//
+// Writes OUT.exr (with the merged provenance), OUT.png and OUT.json, staged and renamed together
+// (core/output_set.h); none may replace a part or its record. The record holds the fields common to
 // all parts, "width"/"height" of the full image, "parts" (file, crop, wall_s, rays of each),
 // rays, shadow_rays, nan_count, load_s, build_s and wall_s summed over the parts, "wall_s_max"
 // (the slowest part), peak_rss_mb as the largest, and rays_per_s = rays / wall_s. Fields that
@@ -16,6 +21,7 @@
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fmt/format.h>
@@ -27,6 +33,7 @@
 #include "app/commands.h"
 #include "core/distributed.h"
 #include "core/error.h"
+#include "core/output_set.h"
 #include "core/text_file.h"
 #include "image/image.h"
 
@@ -45,12 +52,13 @@ struct MergeArgs {
 struct Part {
     std::string exr;
     json rec;
+    ImageMetadata meta;  ///< the EXR's own provenance (meso:scene_sha1, seed, spp, crop, full_size)
     int full_w = 0, full_h = 0;
     std::array<int, 4> crop{};  ///< x0, y0, x1, y1
 };
 
 /// The keys on which all parts must agree (besides the full size).
-constexpr const char *kSameRender[] = {"scene", "defines", "seed", "spp", "integrator", "sampler"};
+constexpr const char *kSameRender[] = {"scene", "scene_sha1", "defines", "seed", "spp", "integrator", "sampler"};
 /// Summed over the parts in the merged record.
 constexpr const char *kSummed[] = {"wall_s", "rays", "shadow_rays", "nan_count", "load_s", "build_s"};
 /// A part's error against its reference: meaningless for the whole image.
@@ -93,10 +101,49 @@ Part read_part(const std::string &exr) {
         p.full_h = int_field(p.rec["height"], "height", jp);
         p.crop = {0, 0, p.full_w, p.full_h};
     }
+    p.meta = read_image_metadata(exr);
     const auto &c = p.crop;
     if (!(0 <= c[0] && c[0] < c[2] && c[2] <= p.full_w && 0 <= c[1] && c[1] < c[3] && c[3] <= p.full_h))
         throw MesoError(fmt::format("{}: crop {} is not a window of the {}x{} image", jp, crop_str(c), p.full_w, p.full_h));
     return p;
+}
+
+std::string meta_value(const Part &p, const std::string &key) {
+    for (const auto &[k, v] : p.meta)
+        if (k == key) return v;
+    throw MesoError(fmt::format("{}: the EXR has no meso:{} metadata (not written by meso render, or an image swapped "
+                                "in from elsewhere)",
+                                p.exr, key));
+}
+
+/// The EXR's own metadata must say what its record says: an image swapped in beside another
+/// render's record is refused, naming the field.
+void check_metadata(const Part &p) {
+    const std::string js = fs::path(p.exr).replace_extension(".json").string();
+    const std::pair<std::string, std::string> expected[] = {
+        {"crop", fmt::format("{},{},{},{}", p.crop[0], p.crop[1], p.crop[2], p.crop[3])},
+        {"full_size", fmt::format("{}x{}", p.full_w, p.full_h)},
+        {"seed", p.rec.value("seed", json()).dump()},
+        {"spp", p.rec.value("spp", json()).dump()},
+        {"scene_sha1", p.rec.value("scene_sha1", std::string())},
+        {"defines", p.rec.value("defines", json()).dump()}};
+    for (const auto &[key, want] : expected) {
+        const std::string got = meta_value(p, key);
+        if (got != want)
+            throw MesoError(fmt::format("{}: the EXR's metadata says {} = {} but its record {} says {} (an image "
+                                        "swapped in from another render?)",
+                                        p.exr, key, got, js, want));
+    }
+}
+
+/// Each EXR's metadata against its record and against the first part's EXR.
+void check_part_metadata(const Part &p, const Part &first) {
+    check_metadata(p);
+    for (const char *k : {"scene_sha1", "defines", "seed", "spp", "full_size"})
+        if (meta_value(p, k) != meta_value(first, k))
+            throw MesoError(fmt::format("{}: the EXR's metadata says {} = {} but {} has {} (the parts must come "
+                                        "from one render)",
+                                        p.exr, k, meta_value(p, k), first.exr, meta_value(first, k)));
 }
 
 /// Throws unless the parts come from the same render, do not overlap and cover the image.
@@ -191,20 +238,21 @@ json merged_record(const std::vector<Part> &parts) {
 
 int run_merge(const MergeArgs &a) {
     if (dist::rank() != 0) return 0;  // nothing to distribute: under mpirun only rank 0 merges
-    // The output is checked before anything is read.
+    // The outputs are checked before anything is read: none may replace a part or its record.
+    if (!std::isfinite(a.exposure)) throw MesoError(fmt::format("--exposure {}: expected a finite number of stops", a.exposure));
     fs::path out = a.output;
     if (out.extension() != ".exr") throw MesoError(fmt::format("{}: the output must be an .exr file", a.output));
-    if (!out.parent_path().empty() && !fs::is_directory(out.parent_path()))
-        throw MesoError(fmt::format("{}: directory '{}' does not exist", a.output, out.parent_path().string()));
     fs::path png = out, js = out;
     png.replace_extension(".png");
     js.replace_extension(".json");
+    OutputSet set;
     for (const std::string &p : a.parts) {
-        std::error_code e1, e2;
-        fs::path cp = fs::weakly_canonical(p, e1), co = fs::weakly_canonical(out, e2);
-        if (!e1 && !e2 && cp == co)
-            throw MesoError(fmt::format("{}: the output would overwrite a part (and its record)", a.output));
+        set.add_input(p, "a part");
+        set.add_input(fs::path(p).replace_extension(".json").string(), "a part's record");
     }
+    const std::string exr_tmp = set.add_output("output", out.string()), png_tmp = set.add_output("output", png.string(), a.output);
+    const std::string js_tmp = set.add_output("output", js.string(), a.output, OutputKind::Record);
+    set.check();
 
     std::vector<Part> parts;
     for (const std::string &p : a.parts) parts.push_back(read_part(p));
@@ -220,20 +268,20 @@ int run_merge(const MergeArgs &a) {
             throw MesoError(fmt::format("{}: the image is {}x{} but its record's crop {} is {}x{}", p.exr, img.width,
                                         img.height, crop_str(p.crop), w, h));
         if (img.channels != 3) throw MesoError(fmt::format("{}: expected an RGB image, found {} channels", p.exr, img.channels));
+        check_part_metadata(p, parts[0]);
         for (int y = 0; y < h; ++y)
             std::copy_n(&img.at(0, y, 0), size_t(w) * 3, &merged.at(p.crop[0], p.crop[1] + y, 0));
     }
 
-    // All or nothing: a failed write removes what was already written.
-    try {
-        write_exr(out.string(), merged);
-        write_png(png.string(), merged, a.exposure);
-        write_text_atomic(js.string(), rec.dump(2) + "\n");
-    } catch (...) {
-        std::error_code ec;
-        for (const fs::path &f : {out, png, js}) fs::remove(f, ec);
-        throw;
-    }
+    // All or nothing: staged, then renamed together (a failure leaves the previous files).
+    write_exr(exr_tmp, merged,
+              {{"version", meta_value(parts[0], "version")}, {"scene_sha1", meta_value(parts[0], "scene_sha1")},
+               {"defines", meta_value(parts[0], "defines")}, {"seed", meta_value(parts[0], "seed")},
+               {"spp", meta_value(parts[0], "spp")}, {"crop", fmt::format("0,0,{},{}", W, H)},
+               {"full_size", meta_value(parts[0], "full_size")}});
+    write_png(png_tmp, merged, a.exposure);
+    write_text_atomic(js_tmp, rec.dump(2) + "\n");
+    set.commit();
     std::printf("wrote %s, %s, %s\n", out.string().c_str(), png.string().c_str(), js.string().c_str());
     std::printf("%dx%d from %zu parts, %s spp\n", W, H, parts.size(), rec.value("spp", json()).dump().c_str());
     return 0;

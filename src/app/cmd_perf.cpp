@@ -12,11 +12,13 @@
 #include <tbb/parallel_for.h>
 #include <chrono>
 #include <cstdio>
-#include <fstream>
+#include <thread>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include "app/commands.h"
 #include "core/error.h"
+#include "core/output_set.h"
+#include "core/text_file.h"
 #include "geometry/embree_accel.h"
 #include "geometry/shape.h"
 #include "meso_version.h"
@@ -58,6 +60,14 @@ double median(std::vector<double> v) {
 }
 
 int run_perf(const PerfArgs &a) {
+    const int max_threads = 4 * int(std::max(1u, std::thread::hardware_concurrency()));
+    for (int t : a.threads)
+        if (t < 1 || t > max_threads)
+            throw MesoError(fmt::format("--threads {}: expected 1 to {} (4 x the {} cores)", t, max_threads, max_threads / 4));
+    OutputSet set;  // --json is checked before any work and may not replace the scene
+    set.add_input(a.scene, "the scene file");
+    const std::string json_tmp = a.json_out.empty() ? "" : set.add_output("--json", a.json_out, "", OutputKind::Record);
+    set.check();
     std::unique_ptr<Scene> scene = load_scene(a.scene, a.defines);
     auto tb = std::chrono::steady_clock::now();
     scene->build();
@@ -137,9 +147,8 @@ int run_perf(const PerfArgs &a) {
         std::printf("path tracer speed-up %d -> %d threads: %.2fx\n", a.threads.front(), a.threads.back(),
                     rec["runs"].back()["speedup_vs_first"].get<double>());
     if (!a.json_out.empty()) {
-        std::ofstream f(a.json_out);
-        if (!f) throw MesoError(fmt::format("cannot write '{}'", a.json_out));
-        f << rec.dump(2) << "\n";
+        write_text_atomic(json_tmp, rec.dump(2) + "\n");
+        set.commit();
     }
     return 0;
 }

@@ -9,6 +9,7 @@
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <fmt/format.h>
 #include <map>
 #include <memory>
@@ -20,6 +21,8 @@
 #include <tbb/info.h>
 #include "core/distributed.h"
 #include "core/error.h"
+#include "core/interrupt.h"
+#include "core/output_set.h"
 #include "core/properties.h"
 #include "prefilter/pipeline.h"
 
@@ -88,8 +91,21 @@ prefilter::PipelineOptions validate(const PrefilterFlags &f) {
     return o;
 }
 
+/// The model directory is checked before any work: not an existing file, not a directory other
+/// than a previous model, in a writable directory, not one of the inputs.
+void check_output(const prefilter::PipelineOptions &o) {
+    OutputSet set;
+    set.add_input(o.map, "the height map");
+    std::error_code ec;
+    if (std::filesystem::is_regular_file(o.base, ec)) set.add_input(o.base, "the base material");
+    set.add_output("-o", o.output, "", OutputKind::Directory, "manifest.json");
+    set.check();
+}
+
 int run_prefilter(const PrefilterFlags &f) {
     const prefilter::PipelineOptions o = validate(f);
+    check_output(o);
+    install_interrupt_handler(InterruptMode::Immediate);  // Ctrl-C: exit 130, no model written
     const int threads = f.threads > 0 ? f.threads : std::max(1, tbb::info::default_concurrency() / dist::local_size());
     tbb::global_control limit(tbb::global_control::max_allowed_parallelism, size_t(threads));
     prefilter::run_pipeline(o);

@@ -3,6 +3,7 @@
 // error never leaves a half-written output.
 #pragma once
 #include <string>
+#include <utility>
 #include <vector>
 #include "core/spectrum.h"
 
@@ -25,8 +26,15 @@ struct Image {
 /// encoded files (PNG/JPEG colour textures) to linear; float formats are taken as linear.
 /// Throws MesoError("<path>: cannot read image: <reason>") on failure.
 Image read_image(const std::string &path, bool linearize_srgb = false);
-/// Full-float EXR (RGB or the image's channels). Throws MesoError on failure.
-void write_exr(const std::string &path, const Image &img);
+/// Provenance of an image: string attributes stored in the EXR header, each named "meso:KEY"
+/// (scene_sha1, seed, spp, crop, full_size, version; see `meso render`).
+using ImageMetadata = std::vector<std::pair<std::string, std::string>>;
+/// Full-float EXR (RGB or the image's channels) with `meta` as "meso:KEY" header attributes.
+/// Throws MesoError on failure.
+void write_exr(const std::string &path, const Image &img, const ImageMetadata &meta = {});
+/// The "meso:KEY" attributes of an image file's header, KEY without the prefix (empty if none).
+/// Throws MesoError("<path>: cannot read image: ...") if the file cannot be opened.
+ImageMetadata read_image_metadata(const std::string &path);
 /// 8-bit sRGB PNG of exposure-scaled, clamped linear RGB.
 void write_png(const std::string &path, const Image &img, float exposure_stops = 0.f);
 /// Linear -> sRGB transfer (and inverse) for one channel value.

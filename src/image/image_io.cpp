@@ -166,7 +166,21 @@ Image read_image(const std::string &path, bool linearize_srgb) {
     return img;
 }
 
-void write_exr(const std::string &path, const Image &img) {
+ImageMetadata read_image_metadata(const std::string &path) {
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec)) read_error(path, "not a regular file");
+    auto in = ImageInput::open(path);
+    if (!in) read_error(path, trimmed(OIIO::geterror(), "unknown format"));
+    ImageMetadata meta;
+    for (const OIIO::ParamValue &p : in->spec().extra_attribs) {
+        const std::string name = p.name().string();
+        if (name.rfind("meso:", 0) == 0 && p.type() == TypeDesc::STRING)
+            meta.emplace_back(name.substr(5), p.get_string());
+    }
+    return meta;
+}
+
+void write_exr(const std::string &path, const Image &img, const ImageMetadata &meta) {
     check_image(path, img);
     ImageSpec spec(img.width, img.height, img.channels, TypeDesc::FLOAT);
     spec.channelnames.clear();
@@ -181,6 +195,7 @@ void write_exr(const std::string &path, const Image &img) {
     if (img.channels == 2) spec.alpha_channel = 1;
     if (img.channels >= 4) spec.alpha_channel = 3;
     spec.attribute("compression", "zip");
+    for (const auto &[key, value] : meta) spec.attribute("meso:" + key, value);
     write_atomically(path, "openexr", spec, img.data.data());
 }
 

@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 #include "core/distributed.h"
 #include "core/error.h"
+#include "core/output_set.h"
 #include "core/progress.h"
 #include "core/registry.h"
 #include "geometry/heightfield.h"
@@ -265,7 +266,11 @@ void run_pipeline(const PipelineOptions &o) {
     const auto t_all = Clock::now();
     const PrefilteredModel model = build_model(o);
     if (dist::rank() != 0) return;
-    model.save(o.output);
+    // Staged in a hidden directory beside the target and renamed at the end: an interrupted or
+    // failed run leaves no directory that looks like a complete model (and the old one intact).
+    OutputSet set;
+    model.save(set.add_output("-o", o.output, "", OutputKind::Directory, "manifest.json"));
+    set.commit();
     std::printf("%s\n", fmt::format("prefilter: wrote {} ({} levels, {:.1f} s{})", o.output, model.levels.size(),
                                     since(t_all), dist::size() > 1 ? fmt::format(", {} ranks", dist::size()) : "")
                              .c_str());

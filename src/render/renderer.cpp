@@ -25,6 +25,13 @@ double peak_rss_mb() {
     return ru.ru_maxrss / 1024.0;  // kB on Linux
 }
 
+size_t film_bytes(int width, int height) { return size_t(width) * size_t(height) * (3 * sizeof(double) + 3 * sizeof(float)); }
+
+size_t physical_memory_bytes() {
+    const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+    return pages > 0 && page > 0 ? size_t(pages) * size_t(page) : 0;
+}
+
 namespace {
 
 /// Accumulates samples per pixel in double precision. Each pixel is written by one
@@ -164,6 +171,7 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); };
 
     int spp_done = 0, passes = 0;
+    bool interrupted = false;
     double last_pass_s = 0.0, pass_start = 0.0;
     for (;;) {
         // spp_done: samples per pixel of all ranks so far; this rank's block of the pass.
@@ -189,6 +197,11 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
         }
         progress.update(timed ? t : double(spp_done), t, fmt::format("{} spp", spp_done));
         if (!timed && spp_done >= total_spp) break;
+        // Every rank asks (a collective); rank 0's answer counts, so all stop after the same pass.
+        if (opts.stop && dist::broadcast(opts.stop())) {
+            interrupted = true;
+            break;
+        }
     }
     progress.finish(elapsed());
 
@@ -199,6 +212,7 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     res.wall_s = wall;
     res.spp = spp_done;
     res.passes = passes;
+    res.interrupted = interrupted;
     res.threads = threads;
     res.image = film.resolve(spp_done);
     for (auto &s : stats) {

@@ -27,6 +27,10 @@ struct RenderOptions {
     std::optional<std::array<int, 4>> crop;
     const Image *reference = nullptr;    ///< per-pass error (for --convergence); the window's size
     std::string convergence_csv;         ///< write "pass,elapsed_s,spp,mse,relmse" rows here
+    /// Polled after every pass (on rank 0; its answer is broadcast): true ends the render early,
+    /// keeping the passes done (RenderResult::interrupted). E.g. core/interrupt.h's
+    /// interrupt_requested for Ctrl-C.
+    std::function<bool()> stop;
 };
 
 struct RenderResult {
@@ -40,6 +44,7 @@ struct RenderResult {
     long nan_count = 0;      ///< NaN/Inf samples caught by the film (counted as 0)
     int threads = 0;         ///< per rank
     int ranks = 1;           ///< MPI ranks that rendered (the image, spp and counters are their sum)
+    bool interrupted = false;  ///< stopped early by RenderOptions::stop (spp < the budget)
 };
 
 /// With several MPI ranks (core/distributed.h) every rank must call this; the result's image and
@@ -52,5 +57,11 @@ void check_crop(const std::array<int, 4> &crop, int width, int height);
 
 /// Peak resident memory of this process in MB (getrusage).
 double peak_rss_mb();
+
+/// Bytes of the film of a w x h render (double sums + the float image), as `--plan` counts it.
+size_t film_bytes(int width, int height);
+
+/// Physical memory of the machine in bytes (sysconf).
+size_t physical_memory_bytes();
 
 }  // namespace meso

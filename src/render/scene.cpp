@@ -4,6 +4,7 @@
 #include "geometry/shape.h"
 #include "bsdf/material.h"
 #include "sampling/distribution.h"
+#include "render/renderer.h"
 
 namespace meso {
 
@@ -69,7 +70,7 @@ std::vector<std::string> Scene::plan() const {
     }
     for (size_t i = 0; i < lights.size(); ++i) out.push_back(fmt::format("light {}: {}", i, lights[i]->to_string()));
     if (camera) {
-        size_t film = size_t(camera->width()) * camera->height() * (3 * sizeof(double) + 3 * sizeof(float));
+        size_t film = film_bytes(camera->width(), camera->height());
         total += film;
         out.push_back(fmt::format("film: {}x{}, {:.2f} MB", camera->width(), camera->height(), film / 1048576.0));
     }
