@@ -38,6 +38,11 @@ def read_pfm(path):
 def run(cmd, quiet=True):
     """Runs a command; on failure prints it with its output and exits naming the subcommand."""
     r = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    if r.returncode in (130, -2):
+        # Ctrl-C reaches the whole process group: the child stopped (meso exits 130 after
+        # keeping its passes). Stop too; callers stage results in *.partial and never rename them.
+        sys.stderr.write("interrupted\n")
+        raise SystemExit(130)
     if r.returncode != 0:
         sys.stderr.write(" ".join(cmd) + "\n" + r.stdout + r.stderr)
         raise SystemExit(f"command failed ({r.returncode}): {cmd[1] if len(cmd) > 1 else cmd[0]}")
