@@ -90,6 +90,8 @@ void OutputSet::check_output(const Output &o) const {
                              o.path));
     }
     const std::string dir = dir_of(o.path);
+    // A model directory's missing parents are created (as `meso prefilter -o a/b/model` always did).
+    if (o.kind == OutputKind::Directory && !fs::exists(dir, ec)) fs::create_directories(dir, ec);
     if (!fs::is_directory(dir, ec)) fail(fmt::format("directory '{}' does not exist", dir));
     if (::access(dir.c_str(), W_OK | X_OK) != 0) fail(fmt::format("directory '{}' is not writable", dir));
 }
