@@ -41,7 +41,7 @@ std::string input_file_problem(const std::string &path, uint64_t max_bytes, cons
     const uintmax_t size = fs::file_size(path, ec);
     if (ec) return ec.message();
     if (uint64_t(size) > max_bytes)
-        return fmt::format("it is {}, more than the limit of {} for a {}", bytes_text(size), bytes_text(max_bytes), kind);
+        return fmt::format("it is {} bytes, more than the {} limit for {}s", uint64_t(size), bytes_text(max_bytes), kind);
     return "";
 }
 

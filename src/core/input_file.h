@@ -16,7 +16,7 @@ inline constexpr uint64_t kMaxImageValues = uint64_t(1) << 30;
 
 /// Empty when `path` is a regular file of at most `max_bytes`; otherwise why not: "file not
 /// found", "it is a directory", "it is a character device, not a regular file" or "it is
-/// 5.1 GiB, more than the limit of 4 GiB for a KIND" (KIND: "scene file", "image", ...).
+/// 5000000000 bytes, more than the 4 GiB limit for KINDs" (KIND: "scene file", "image", ...).
 std::string input_file_problem(const std::string &path, uint64_t max_bytes, const char *kind);
 
 /// Throws MesoError "PATH: cannot open the KIND (PROBLEM)" when input_file_problem finds one.

@@ -82,12 +82,6 @@ float Properties::get_float(const std::string &key) const {
 }
 float Properties::get_float(const std::string &key, float def) const { return has(key) ? get_float(key) : def; }
 
-float Properties::get_float(const std::string &key, float def, float lo, float hi) const {
-    const float f = get_float(key, def);
-    if (!(f >= lo && f <= hi)) fail(key, fmt::format("expected a number in [{}, {}], got {}", lo, hi, f));
-    return f;
-}
-
 Vec3 Properties::get_position(const std::string &key, Vec3 def) const { return has(key) ? get_position(key) : def; }
 Vec3 Properties::get_position(const std::string &key) const {
     const Vec3 v = get_vec3(key);

@@ -67,8 +67,6 @@ public:
 
     float get_float(const std::string &key) const;
     float get_float(const std::string &key, float def) const;
-    /// get_float(key, def) that must lie in [lo, hi]: "expected a number in [lo, hi], got x".
-    float get_float(const std::string &key, float def, float lo, float hi) const;
     int get_int(const std::string &key) const;
     int get_int(const std::string &key, int def) const;
     bool get_bool(const std::string &key, bool def) const;
