@@ -1,5 +1,6 @@
 // `perspective` camera: pinhole or thin lens, with ray differentials for every ray.
 //   origin, target, up     vec3   camera placement (look-at)  [0,0,0], [0,0,-1], [0,1,0]
+//                                 (origin and target coordinates within ±1e8)
 //   fov                    float  field of view in degrees, (0, 180)   40
 //   fov_axis               string "x" (default) or "y": the axis fov spans
 //   width, height          int    film size in pixels, [1, 65536]      640, 480
@@ -20,8 +21,8 @@ namespace {
 class PerspectiveCamera final : public Camera {
 public:
     explicit PerspectiveCamera(const Properties &p) {
-        Vec3 origin = p.get_vec3("origin", Vec3(0, 0, 0));
-        Vec3 target = p.get_vec3("target", Vec3(0, 0, -1));
+        Vec3 origin = p.get_position("origin", Vec3(0, 0, 0));
+        Vec3 target = p.get_position("target", Vec3(0, 0, -1));
         Vec3 up = p.get_vec3("up", Vec3(0, 1, 0));
         try {
             m_to_world = Transform::look_at(origin, target, up);

@@ -99,7 +99,7 @@ TEST(CmdMaterial, BadInputStopsWithOneLocatedLine) {
 
     r = run({"material", "albedo", "/nonexistent/dir/gold.json", "--wo", "0,0"});
     EXPECT_EQ(r.code, 1);
-    EXPECT_EQ(r.err, "meso: error: /nonexistent/dir/gold.json: material file not found\n");
+    EXPECT_EQ(r.err, "meso: error: /nonexistent/dir/gold.json: cannot open the material file (file not found)\n");
 
     r = run({"material", "eval", R"({"type":"conductor","alpha":0.1,"roughness":0.3})", "--wo", "0,0", "--wi", "0,0"});
     EXPECT_EQ(r.code, 1);

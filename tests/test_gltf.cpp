@@ -237,8 +237,8 @@ TEST(Gltf, NoLightsAddsConstantEnvironment) {
 TEST(Gltf, Errors) {
     GltfTemp tmp;
     std::string missing = tmp.write("x.txt", "") + ".gltf";
-    EXPECT_EQ(error_of([&] { load_gltf_meshes(missing); }), missing + ": file not found");
-    EXPECT_EQ(error_of([&] { load_scene(missing, {}); }), missing + ": file not found");
+    EXPECT_EQ(error_of([&] { load_gltf_meshes(missing); }), missing + ": cannot open the glTF file (file not found)");
+    EXPECT_EQ(error_of([&] { load_scene(missing, {}); }), missing + ": cannot open the scene file (file not found)");
 
     std::string garbage = tmp.write("garbage.gltf", "this is { not glTF");
     std::string msg = error_of([&] { load_gltf_meshes(garbage); });
@@ -286,6 +286,42 @@ TEST(Gltf, Errors) {
     EXPECT_EQ(error_of([&] { load_scene(scene, {}); }),
               scene + ": shapes[0].filename: " + overrun +
                   ": mesh 0 primitive 0: POSITION: accessor data lies outside its buffer (48 bytes needed at offset 0, buffer has 42)");
+}
+
+TEST(Gltf, RefusesWhatItCannotRead) {
+    GltfTemp tmp;
+    // A required extension meso does not implement: refused, naming it (glTF 2.0, 3.12).
+    std::string draco = tmp.write("draco.gltf", [] {
+        json j = json::parse(triangle_gltf(kGoodAccessors));
+        j["extensionsUsed"] = {"KHR_draco_mesh_compression"};
+        j["extensionsRequired"] = {"KHR_draco_mesh_compression"};
+        return j.dump();
+    }());
+    EXPECT_EQ(error_of([&] { load_gltf_meshes(draco); }),
+              draco + ": extensionsRequired: the file requires the extension 'KHR_draco_mesh_compression', which meso "
+                      "does not implement (meso implements KHR_lights_punctual and KHR_materials_emissive_strength)");
+    // Required extensions that meso implements are fine.
+    std::string lights = tmp.write("lights.gltf", [] {
+        json j = json::parse(triangle_gltf(kGoodAccessors));
+        j["extensionsUsed"] = {"KHR_lights_punctual"};
+        j["extensionsRequired"] = {"KHR_lights_punctual"};
+        return j.dump();
+    }());
+    EXPECT_EQ(load_gltf_meshes(lights).size(), 1u);
+    // Only glTF 2.x.
+    std::string v1 = tmp.write("v1.gltf", [] {
+        json j = json::parse(triangle_gltf(kGoodAccessors));
+        j["asset"]["version"] = "1.0";
+        return j.dump();
+    }());
+    EXPECT_EQ(error_of([&] { load_gltf_meshes(v1); }), v1 + ": asset.version: expected a glTF 2.x file, got version \"1.0\"");
+    // Morph targets are not applied: a warning names the mesh.
+    std::string morph = tmp.write("morph.gltf", triangle_gltf(kGoodAccessors, R"(, "targets": [{"POSITION": 0}])"));
+    testing::internal::CaptureStderr();
+    auto meshes = load_gltf_meshes(morph);
+    std::string err = testing::internal::GetCapturedStderr();
+    EXPECT_EQ(meshes.size(), 1u);
+    EXPECT_EQ(err, morph + ": warning: mesh 0 primitive 0: its 1 morph targets are ignored (meso renders the base shape)\n");
 }
 
 TEST(Gltf, ModeAndTransformEdgeCases) {

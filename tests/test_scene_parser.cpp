@@ -82,7 +82,7 @@ template <typename T> std::string known_names(const PluginTable<T> &t) {
 TEST(SceneParser, MissingFile) {
     TempDir dir;
     std::string p = dir.path("nope.json");
-    EXPECT_EQ(load_error(p), p + ": cannot open the scene file (No such file or directory)");
+    EXPECT_EQ(load_error(p), p + ": cannot open the scene file (file not found)");
 }
 
 TEST(SceneParser, DirectoryIsNotASceneFile) {

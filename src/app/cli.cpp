@@ -13,6 +13,26 @@ std::vector<Subcommand> &subcommands() {
     return cmds;
 }
 
+/// A command-line error (unknown option, missing or malformed value, value out of range):
+/// "meso: error: render: MESSAGE (see meso render --help)" on stderr and exit code 2.
+static int usage_error(const CLI::App &app, const CLI::ParseError &e) {
+    std::string cmd = "meso";
+    const CLI::App *cur = &app;
+    while (!cur->get_subcommands().empty()) {
+        cur = cur->get_subcommands().back();
+        cmd += " " + cur->get_name();
+    }
+    const std::string where = cmd.size() > 4 ? cmd.substr(5) + ": " : "";
+    std::string msg = e.what();
+    if (cur == &app && !app.remaining().empty() && app.remaining()[0].rfind("-", 0) != 0) {
+        std::string names;
+        for (const auto &c : subcommands()) names += std::string(names.empty() ? "" : ", ") + c.name;
+        msg = fmt::format("unknown command '{}' (expected one of {})", app.remaining()[0], names);
+    }
+    std::fprintf(stderr, "meso: error: %s%s (see %s --help)\n", where.c_str(), msg.c_str(), cmd.c_str());
+    return 2;
+}
+
 int run_cli(int argc, char **argv) {
     CLI::App app{"meso " MESO_VERSION " - a path tracer for sub-pixel surface detail (ground truth and prefiltered LoD)"};
     app.require_subcommand(1);
@@ -26,7 +46,8 @@ int run_cli(int argc, char **argv) {
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError &e) {
-        return app.exit(e);
+        if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
+        return usage_error(app, e);
     }
     try {
         for (auto &[sub, act] : actions)

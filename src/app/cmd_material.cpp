@@ -15,6 +15,7 @@
 #include <filesystem>
 #include <fmt/format.h>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include "app/commands.h"
@@ -58,7 +59,8 @@ void print_json(const ojson &j) {
 
 struct Options {
     std::string material, wo = "0,0", wi = "0,0";
-    uint64_t samples = 0, seed = 0;
+    // Signed, so that "-5" is an error rather than a huge unsigned count; 0: the default.
+    int64_t samples = 0, seed = 0;
     int res = 16, tests = 1, sub = 16;
     double alpha = 0.01;
 };
@@ -77,14 +79,16 @@ SubcommandRegistrar reg({"material", "Evaluate, integrate or χ²-test one mater
     CLI::App *albedo = app.add_subcommand("albedo", "print {\"albedo\":[r,g,b],\"stderr\":[r,g,b]} from the material's sampler");
     albedo->add_option("MATERIAL", o->material, mat_help)->required();
     albedo->add_option("--wo", o->wo, dir_help)->required();
-    albedo->add_option("--samples", o->samples, "number of samples (default 100000)");
-    albedo->add_option("--seed", o->seed, "random seed (default 0)");
+    const auto count = CLI::Range(int64_t(1), std::numeric_limits<int64_t>::max());
+    const auto seed = CLI::Range(int64_t(0), std::numeric_limits<int64_t>::max());
+    albedo->add_option("--samples", o->samples, "number of samples, > 0 (default 100000)")->check(count);
+    albedo->add_option("--seed", o->seed, "random seed, >= 0 (default 0)")->check(seed);
 
     CLI::App *chi2 = app.add_subcommand("chi2", "chi^2 test of sample() against pdf(); prints {\"p_value\":p,\"passed\":bool,...}, exit 1 if it fails");
     chi2->add_option("MATERIAL", o->material, mat_help)->required();
     chi2->add_option("--wo", o->wo, dir_help)->required();
-    chi2->add_option("--samples", o->samples, "number of samples (default 1000000)");
-    chi2->add_option("--seed", o->seed, "random seed (default 0)");
+    chi2->add_option("--samples", o->samples, "number of samples, > 0 (default 1000000)")->check(count);
+    chi2->add_option("--seed", o->seed, "random seed, >= 0 (default 0)")->check(seed);
     chi2->add_option("--res", o->res, "cos(theta) bins per hemisphere; phi gets twice as many (default 16)")->check(CLI::Range(2, 512));
     chi2->add_option("--sub", o->sub, "Simpson intervals per cell and axis for integrating the pdf (default 16)")->check(CLI::Range(2, 256));
     chi2->add_option("--alpha", o->alpha, "significance level of the family of tests (default 0.01)")->check(CLI::Range(1e-12, 0.5));
@@ -106,8 +110,8 @@ SubcommandRegistrar reg({"material", "Evaluate, integrate or χ²-test one mater
             return 0;
         }
         if (albedo->parsed()) {
-            uint64_t n = o->samples ? o->samples : 100000;
-            AlbedoEstimate a = estimate_albedo(*mat, ctx, wo, n, o->seed);
+            uint64_t n = o->samples ? uint64_t(o->samples) : 100000;
+            AlbedoEstimate a = estimate_albedo(*mat, ctx, wo, n, uint64_t(o->seed));
             ojson j;
             j["albedo"] = rgb(a.mean);
             j["stderr"] = rgb(a.stderr_);
@@ -115,8 +119,8 @@ SubcommandRegistrar reg({"material", "Evaluate, integrate or χ²-test one mater
             return 0;
         }
         Chi2Options co;
-        co.samples = o->samples ? o->samples : 1000000;
-        co.seed = o->seed;
+        co.samples = o->samples ? uint64_t(o->samples) : 1000000;
+        co.seed = uint64_t(o->seed);
         co.res = o->res;
         co.sub = o->sub;
         co.alpha = o->alpha;

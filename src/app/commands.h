@@ -9,8 +9,9 @@ namespace CLI { class App; }
 
 namespace meso {
 
-/// Runs the command line; returns the process exit code. Errors print one line
-/// "meso: error: ..." to stderr and return non-zero.
+/// Runs the command line; returns the process exit code: 0 success, 1 an error, 2 a usage
+/// error (unknown option, missing or malformed value, value out of range). Errors print one
+/// line "meso: error: ..." to stderr.
 int run_cli(int argc, char **argv);
 
 /// A subcommand: `setup` adds options to its CLI::App and returns the action to run.

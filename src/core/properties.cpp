@@ -1,8 +1,11 @@
 #include "core/properties.h"
+#include <cmath>
 #include <filesystem>
+#include <limits>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include "core/error.h"
+#include "core/input_file.h"
 #include "core/registry.h"
 
 namespace meso {
@@ -62,14 +65,32 @@ std::string Properties::type() const {
     return v.get<std::string>();
 }
 
+/// A JSON number as a float: finite and within the float range (1e39 would become inf).
+static bool to_float(const json &v, float &out) {
+    const double d = v.get<double>();
+    if (!std::isfinite(d) || std::abs(d) > double(std::numeric_limits<float>::max())) return false;
+    out = float(d);
+    return true;
+}
+
 float Properties::get_float(const std::string &key) const {
     const json &v = require(key);
     if (!v.is_number()) fail(key, fmt::format("expected a number, got {}", json_type_name(v)));
-    double d = v.get<double>();
-    if (!std::isfinite(d)) fail(key, "expected a finite number");
-    return float(d);
+    float f;
+    if (!to_float(v, f)) fail(key, fmt::format("expected a finite number of magnitude at most 3.4e38, got {}", v.dump()));
+    return f;
 }
 float Properties::get_float(const std::string &key, float def) const { return has(key) ? get_float(key) : def; }
+
+Vec3 Properties::get_position(const std::string &key, Vec3 def) const { return has(key) ? get_position(key) : def; }
+Vec3 Properties::get_position(const std::string &key) const {
+    const Vec3 v = get_vec3(key);
+    for (int i = 0; i < 3; ++i)
+        if (!(std::abs(v[i]) <= kMaxSceneCoordinate))
+            fail(key, fmt::format("expected coordinates in [-{:g}, {:g}], got {:g} at index {}", kMaxSceneCoordinate,
+                                  kMaxSceneCoordinate, v[i], i));
+    return v;
+}
 
 int Properties::get_int(const std::string &key) const {
     const json &v = require(key);
@@ -103,9 +124,10 @@ std::vector<float> Properties::get_floats(const std::string &key) const {
     std::vector<float> out;
     for (size_t i = 0; i < v.size(); ++i) {
         if (!v[i].is_number()) fail(key, fmt::format("element {}: expected a number, got {}", i, json_type_name(v[i])));
-        double d = v[i].get<double>();
-        if (!std::isfinite(d)) fail(key, fmt::format("element {}: expected a finite number", i));
-        out.push_back(float(d));
+        float f;
+        if (!to_float(v[i], f))
+            fail(key, fmt::format("element {}: expected a finite number of magnitude at most 3.4e38, got {}", i, v[i].dump()));
+        out.push_back(f);
     }
     return out;
 }
@@ -141,6 +163,10 @@ std::string Properties::get_file(const std::string &key) const {
     std::error_code ec;
     if (!fs::exists(p, ec)) fail(key, fmt::format("file not found: '{}'", p.string()));
     if (fs::is_directory(p, ec)) fail(key, fmt::format("expected a file, got a directory: '{}'", p.string()));
+    // Devices and pipes (/dev/zero) would block or never end: only regular files (size limits
+    // are checked by the reader, which knows the kind of file).
+    if (std::string why = input_file_problem(p.string(), UINT64_MAX, "file"); !why.empty())
+        fail(key, fmt::format("'{}': {}", p.string(), why));
     return p.string();
 }
 

@@ -23,6 +23,10 @@ namespace meso {
 class Texture;
 class Material;
 
+/// Largest magnitude of a scene coordinate or length (positions, radii, transform entries):
+/// beyond it float precision leaves nothing to render (README.md, "Limits").
+inline constexpr float kMaxSceneCoordinate = 1e8f;
+
 /// Shared state of one scene load: the file name for messages, the directory that
 /// relative paths resolve against, named objects, and -D overrides already applied.
 struct LoadContext {
@@ -70,6 +74,9 @@ public:
     std::string get_string(const std::string &key, const std::string &def) const;
     Vec3 get_vec3(const std::string &key) const;
     Vec3 get_vec3(const std::string &key, Vec3 def) const;
+    /// A point in world or object space: every coordinate within ±kMaxSceneCoordinate.
+    Vec3 get_position(const std::string &key) const;
+    Vec3 get_position(const std::string &key, Vec3 def) const;
     Spectrum get_spectrum(const std::string &key) const;
     Spectrum get_spectrum(const std::string &key, Spectrum def) const;
     std::vector<float> get_floats(const std::string &key) const;

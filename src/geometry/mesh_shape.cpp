@@ -162,7 +162,7 @@ std::string MeshShape::to_string() const {
                        m_mesh.vertex_count(), m_area);
 }
 
-std::shared_ptr<Shape> make_mesh_shape(TriangleMesh mesh, const Properties &p, const std::string &name) {
+static std::shared_ptr<Shape> build_mesh_shape(TriangleMesh mesh, const Properties &p, const std::string &name) {
     Transform t = parse_transform(p);
     mesh.transform(t);
     if (p.get_bool("flip_normals", false)) {
@@ -176,6 +176,17 @@ std::shared_ptr<Shape> make_mesh_shape(TriangleMesh mesh, const Properties &p, c
         return std::make_shared<MeshShape>(std::move(fine), fmt::format("{}, displaced by '{}' (tessellated)", name, d.source));
     }
     return std::make_shared<MeshShape>(std::move(mesh), name);
+}
+
+std::shared_ptr<Shape> make_mesh_shape(TriangleMesh mesh, const Properties &p, const std::string &name) {
+    try {
+        return build_mesh_shape(std::move(mesh), p, name);
+    } catch (const MesoError &e) {
+        // The mesh checks name the shape ("shapes[2] (rectangle): ..."): add the scene file.
+        const std::string msg = e.what();
+        if (p.file().empty() || msg.rfind(p.file() + ": ", 0) == 0) throw;
+        throw MesoError(fmt::format("{}: {}", p.file(), msg));
+    }
 }
 
 // Procedural mesh shapes (Mitsuba 3 names and object-space extents).

@@ -1,7 +1,7 @@
 // `sphere`: an analytic sphere traced by Embree's sphere primitive (exact normals, no
 // tessellation), as Mitsuba's `sphere`.
 //   center        vec3   [0,0,0]
-//   radius        float  1        (> 0)
+//   radius        float  1        (0, 1e8]; center coordinates within ±1e8
 //   flip_normals  bool   false    normals point inwards
 #include <fmt/format.h>
 #include "geometry/mesh_shape.h"
@@ -81,18 +81,19 @@ private:
 
 MESO_REGISTER_SHAPE("sphere", "analytic sphere (center, radius, flip_normals; with displacement: a uv sphere of rings x segments)", [](const Properties &p) -> std::shared_ptr<Shape> {
     float r = p.get_float("radius", 1.f);
-    if (!(r > 0.f)) p.fail("radius", "expected a positive radius");
+    if (!(r > 0.f && r <= kMaxSceneCoordinate))
+        p.fail("radius", fmt::format("expected a radius in (0, {:g}], got {:g}", kMaxSceneCoordinate, r));
     if (p.has("displacement")) {
         // Displacement needs a mesh with uvs: the sphere becomes a uv sphere (same uv layout).
         int rings = p.get_int("rings", 64), seg = p.get_int("segments", 128);
         if (rings < 2 || seg < 3 || size_t(rings) * seg > (size_t(1) << 26))
             p.fail("expected rings >= 2, segments >= 3, rings*segments <= 2^26");
         TriangleMesh mesh = make_uv_sphere(rings, seg);
-        Vec3 c = p.get_vec3("center", Vec3());
+        Vec3 c = p.get_position("center", Vec3());
         for (Vec3 &v : mesh.positions) v = c + v * r;
         return make_mesh_shape(std::move(mesh), p, p.path() + " (sphere as uv sphere)");
     }
-    return std::make_shared<SphereShape>(p.get_vec3("center", Vec3()), r, p.get_bool("flip_normals", false));
+    return std::make_shared<SphereShape>(p.get_position("center", Vec3()), r, p.get_bool("flip_normals", false));
 });
 
 }  // namespace

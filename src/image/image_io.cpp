@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <fmt/format.h>
 #include "core/error.h"
+#include "core/input_file.h"
 #include "image/image.h"
 
 namespace meso {
@@ -140,12 +141,16 @@ Image read_image(const std::string &path, bool linearize_srgb) {
     std::error_code ec;
     if (!fs::exists(path, ec)) read_error(path, "file does not exist");
     if (fs::is_directory(path, ec)) read_error(path, "it is a directory");
+    if (std::string why = input_file_problem(path, kMaxImageFileBytes, "image"); !why.empty()) read_error(path, why);
     auto in = ImageInput::open(path);
     if (!in) read_error(path, trimmed(OIIO::geterror(), "unknown format"));
     const ImageSpec &spec = in->spec();
     if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth > 1)
         read_error(path, fmt::format("unsupported image size {}x{}x{} with {} channels", spec.width, spec.height,
                                      spec.depth, spec.nchannels));
+    if (uint64_t(spec.width) * uint64_t(spec.height) * uint64_t(spec.nchannels) > kMaxImageValues)
+        read_error(path, fmt::format("{}x{} with {} channels is more than the limit of 2^30 values", spec.width,
+                                     spec.height, spec.nchannels));
     Image img(spec.width, spec.height, spec.nchannels);
     if (!in->read_image(0, 0, 0, spec.nchannels, TypeDesc::FLOAT, img.data.data()))
         read_error(path, trimmed(in->geterror(), "read failed"));

@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 #include <tiny_gltf.h>
 #include "core/error.h"
+#include "core/input_file.h"
 #include "core/registry.h"
 
 namespace meso {
@@ -127,10 +128,37 @@ std::string trim(std::string s) {
 
 void warn(const std::string &path, const std::string &msg) { fmt::print(stderr, "{}: warning: {}\n", path, msg); }
 
+/// tinygltf's file reader behind meso's input checks (external .bin buffers: regular files,
+/// at most kMaxMeshFileBytes).
+bool read_whole_file(std::vector<unsigned char> *out, std::string *err, const std::string &file, void *user) {
+    const std::string why = input_file_problem(file, kMaxMeshFileBytes, "glTF buffer");
+    if (!why.empty()) {
+        if (err) *err += fmt::format("{}: cannot open the glTF buffer ({})", file, why);
+        return false;
+    }
+    return tinygltf::ReadWholeFile(out, err, file, user);
+}
+
+/// Extensions meso implements; a file that requires any other one is refused (glTF 2.0, 3.12).
+const char *const kImplementedExtensions[] = {"KHR_lights_punctual", "KHR_materials_emissive_strength"};
+
+/// glTF 2.x only, and no required extension meso lacks.
+void check_version_and_extensions(const std::string &path, const tinygltf::Model &model) {
+    const std::string &v = model.asset.version;
+    if (v.size() < 2 || v[0] != '2' || v[1] != '.')
+        throw MesoError(fmt::format("{}: asset.version: expected a glTF 2.x file, got version \"{}\"", path, v));
+    for (const std::string &ext : model.extensionsRequired) {
+        bool known = false;
+        for (const char *k : kImplementedExtensions) known = known || ext == k;
+        if (!known)
+            throw MesoError(fmt::format("{}: extensionsRequired: the file requires the extension '{}', which meso does "
+                                        "not implement (meso implements {} and {})",
+                                        path, ext, kImplementedExtensions[0], kImplementedExtensions[1]));
+    }
+}
+
 void load_model(const std::string &path, tinygltf::Model &model) {
-    std::error_code ec;
-    if (!fs::exists(path, ec)) throw MesoError(fmt::format("{}: file not found", path));
-    if (fs::is_directory(path, ec)) throw MesoError(fmt::format("{}: expected a file, got a directory", path));
+    check_input_file(path, kMaxMeshFileBytes, "glTF file");
     bool binary = false;
     {
         std::ifstream f(path, std::ios::binary);
@@ -141,12 +169,14 @@ void load_model(const std::string &path, tinygltf::Model &model) {
     }
     tinygltf::TinyGLTF loader;
     loader.SetImageLoader(skip_image, nullptr);
+    loader.SetFsCallbacks({&tinygltf::FileExists, &tinygltf::ExpandFilePath, &read_whole_file, &tinygltf::WriteWholeFile, nullptr});
     std::string err, warning;
     bool ok = binary ? loader.LoadBinaryFromFile(&model, &err, &warning, path)
                      : loader.LoadASCIIFromFile(&model, &err, &warning, path);
     if (!ok) throw MesoError(fmt::format("{}: cannot load glTF: {}", path, trim(err.empty() ? warning : err)));
     warning = trim(warning);
     if (!warning.empty()) warn(path, warning);
+    check_version_and_extensions(path, model);
 }
 
 struct Loader {
@@ -268,6 +298,8 @@ struct Loader {
             warn_once(fmt::format("{}: skipped (mode {} is not a triangle mode)", where, mode));
             return false;
         }
+        if (!prim.targets.empty())
+            warn_once(fmt::format("{}: its {} morph targets are ignored (meso renders the base shape)", where, prim.targets.size()));
         auto pos_it = prim.attributes.find("POSITION");
         if (pos_it == prim.attributes.end()) {
             warn_once(fmt::format("{}: skipped (no POSITION attribute)", where));

@@ -2,10 +2,9 @@
 // or the path of a JSON file.
 #include <filesystem>
 #include <fmt/format.h>
-#include <fstream>
-#include <sstream>
 #include <nlohmann/json.hpp>
 #include "core/error.h"
+#include "core/input_file.h"
 #include "core/properties.h"
 #include "core/registry.h"
 
@@ -22,15 +21,8 @@ std::shared_ptr<Material> load_material_arg(const std::string &arg, nlohmann::js
         text = arg;
     } else {
         namespace fs = std::filesystem;
-        std::error_code ec;
         if (arg.empty()) throw MesoError("material: expected a JSON object or the path of a JSON file, got ''");
-        if (!fs::exists(arg, ec)) throw MesoError(fmt::format("{}: material file not found", arg));
-        if (fs::is_directory(arg, ec)) throw MesoError(fmt::format("{}: expected a JSON file, got a directory", arg));
-        std::ifstream f(arg);
-        if (!f) throw MesoError(fmt::format("{}: cannot read the material file", arg));
-        std::stringstream ss;
-        ss << f.rdbuf();
-        text = ss.str();
+        text = read_input_file(arg, kMaxSceneFileBytes, "material file");
         ctx->file = arg;
         ctx->base_dir = fs::path(arg).parent_path().string();
     }

@@ -4,16 +4,14 @@
 // same path and give the same errors. The BVH is not built here (Scene::build, called
 // by the render command; `--plan` prints without building). docs/scene-format.md
 // describes the format.
-#include <cerrno>
-#include <cstring>
+#include <cctype>
 #include <filesystem>
-#include <fstream>
 #include <optional>
 #include <set>
-#include <sstream>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include "core/error.h"
+#include "core/input_file.h"
 #include "geometry/shape.h"
 #include "geometry/shell_shape.h"
 #include "lights/light.h"
@@ -33,17 +31,6 @@ namespace fs = std::filesystem;
 namespace {
 
 const char *const kTopLevelKeys[] = {"camera", "integrator", "sampler", "textures", "materials", "shapes", "lights"};
-
-std::string read_file(const std::string &path) {
-    std::error_code ec;
-    if (fs::is_directory(path, ec)) throw MesoError(fmt::format("{}: cannot open the scene file (it is a directory)", path));
-    std::ifstream f(path, std::ios::binary);
-    if (!f) throw MesoError(fmt::format("{}: cannot open the scene file ({})", path, std::strerror(errno)));
-    std::ostringstream ss;
-    ss << f.rdbuf();
-    if (f.bad()) throw MesoError(fmt::format("{}: cannot read the scene file ({})", path, std::strerror(errno)));
-    return ss.str();
-}
 
 /// Tracks the JSON path during parsing so that a duplicate key (which nlohmann would
 /// silently resolve to the last value) is reported where it is.
@@ -115,7 +102,7 @@ std::string strip_prefix(const std::string &what) {
 }
 
 json parse_scene_json(const std::string &path) {
-    std::string text = read_file(path);
+    std::string text = read_input_file(path, kMaxSceneFileBytes, "scene file");
     try {
         DuplicateKeyCheck check(path);
         return json::parse(text, std::ref(check), /*allow_exceptions=*/true, /*ignore_comments=*/true);
@@ -260,6 +247,12 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, siz
 std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std::string> &overrides, size_t max_triangles) {
     GltfCacheScope cache;  // shapes of one glTF file parse it once
     json doc;
+    check_input_file(path, is_gltf_path(path) ? kMaxMeshFileBytes : kMaxSceneFileBytes, "scene file");
+    std::string ext = fs::path(path).extension().string();
+    for (char &c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
+    if (ext != ".json" && !is_gltf_path(path))
+        throw MesoError(fmt::format("{}: unsupported scene format {} (meso reads .json, .gltf and .glb)", path,
+                                    ext.empty() ? "(the name has no extension)" : "'" + ext + "'"));
     if (is_gltf_path(path)) {
         doc = gltf_scene_to_json(path);
     } else {
