@@ -126,6 +126,14 @@ TEST(MitsubaXml, ParametersDefaultsAndOverrides) {
     EXPECT_EQ(o, (std::vector<std::string>{"camera.height=10", "integrator={\"type\":\"direct\"}"}));
     auto s = load_scene(p, {"spp=7", "camera.height=10"});
     EXPECT_EQ(s->spp, 7);
+    // cbox.xml uses $integrator: -D integrator=direct is its parameter there.
+    std::vector<std::string> oi = {"integrator=direct"};
+    EXPECT_EQ(mitsuba_xml_to_json(kCboxXml, &oi)["integrator"], json({{"type", "direct"}}));
+    EXPECT_TRUE(oi.empty());
+    EXPECT_NE(error_of("direct.xml", "<default name=\"integrator\" value=\"direct\"/>\n<integrator type=\"$integrator\">"
+                                     "<integer name=\"depth\" value=\"3\"/></integrator>\n" + std::string(kSensor))
+                  .find("line 3: <integer name=\"depth\">: unsupported property 'depth' of <integrator type=\"$integrator\">"),
+              std::string::npos);
     // An unknown -D name and an undefined $name are errors.
     std::vector<std::string> typo = {"sp=5"};
     EXPECT_EQ(test::meso_error_of([&] { mitsuba_xml_to_json(p, &typo); }), "-D sp=5: " + p + " has no parameter '$sp'");
@@ -210,4 +218,25 @@ TEST(MitsubaXml, TransformsCamerasAndEmitters) {
                                                            "<scale x=\"1\" y=\"2\"/></transform></shape>\n")
                   .find("line 3: <transform name=\"to_world\">: a sphere's to_world must be a similarity"),
               std::string::npos);
+}
+
+TEST(MitsubaXml, NormalAndBumpMapsAndObjTexCoords) {
+    json d = translate("maps.xml", std::string(kSensor) +
+                                       "<bsdf type=\"normalmap\" id=\"n\"><texture name=\"normalmap\" type=\"bitmap\">"
+                                       "<boolean name=\"raw\" value=\"true\"/><string name=\"filename\" value=\"n.png\"/></texture>"
+                                       "<bsdf type=\"roughplastic\"><float name=\"alpha\" value=\"0.2\"/></bsdf></bsdf>\n"
+                                       "<bsdf type=\"bumpmap\" id=\"b\"><texture type=\"bitmap\"><boolean name=\"raw\" value=\"true\"/>"
+                                       "<string name=\"filename\" value=\"h.png\"/></texture><float name=\"scale\" value=\"0.01\"/>"
+                                       "<bsdf type=\"diffuse\"/></bsdf>\n");
+    EXPECT_EQ(d["materials"]["n"], json({{"type", "normalmap"}, {"normals", "n.png"},
+                                         {"bsdf", {{"type", "plastic"}, {"alpha", 0.2}, {"distribution", "beckmann"}}}}));
+    EXPECT_EQ(d["materials"]["b"], json({{"type", "normalmap"}, {"heightmap", {{"map", "h.png"}, {"scale", 0.01}}},
+                                         {"bsdf", {{"type", "diffuse"}}}}));
+    // flip_tex_coords (Mitsuba's OBJ default) reaches the obj shape, which accepts it.
+    std::string dir = test::scratch_dir("meso_mitsuba_xml");
+    std::ofstream(dir + "/quad.obj") << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n";
+    auto s = load_scene(write_xml("objscene.xml", std::string(kSensor) + "<shape type=\"obj\"><string name=\"filename\" "
+                                                                          "value=\"quad.obj\"/></shape>\n"),
+                        {});
+    EXPECT_EQ(s->shapes.size(), 1u);
 }

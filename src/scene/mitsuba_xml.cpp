@@ -620,6 +620,7 @@ void Translator::integrator(const pugi::xml_node &n) {
     } else if (e.type == "direct") {
         for (const char *p : {"emitter_samples", "bsdf_samples", "shading_samples"})
             ignore(e, p, "meso's direct takes one light and one BSDF sample a pass: raise the spp instead");
+        for (const char *p : {"max_depth", "rr_depth"}) ignore(e, p, "direct lighting is two path segments");
     } else {
         unsupported(e, "integrator", {"path", "direct"});
     }
@@ -931,26 +932,33 @@ void Translator::top_level(const pugi::xml_node &n) {
 }
 
 json Translator::translate(const std::string &path, std::vector<std::string> *overrides) {
-    if (overrides) {  // -D name=value with a bare name: an XML parameter
-        std::vector<std::string> rest;
-        for (const std::string &o : *overrides) {
-            size_t eq = o.find('=');
-            std::string key = o.substr(0, eq);
-            bool bare = eq != std::string::npos && !key.empty() &&
-                        std::all_of(key.begin(), key.end(), [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_'; });
-            for (const char *k : kMesoTopLevel) bare = bare && key != k;
-            if (bare) m_cli[key] = m_params[key] = o.substr(eq + 1);
-            else rest.push_back(o);
-        }
-        *overrides = rest;
-    }
+    // -D name=value with a bare name is an XML parameter; one named like a meso top-level key
+    // (-D integrator=...) only when the file uses $name, else it stays a JSON override.
+    auto bare_name = [](const std::string &o) {
+        size_t eq = o.find('=');
+        std::string key = o.substr(0, eq);
+        bool bare = eq != std::string::npos && !key.empty() &&
+                    std::all_of(key.begin(), key.end(), [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_'; });
+        return bare ? key : std::string();
+    };
+    if (overrides)
+        for (const std::string &o : *overrides)
+            if (std::string key = bare_name(o); !key.empty()) m_cli[key] = m_params[key] = o.substr(key.size() + 1);
     Source &main = load(path, "", nullptr);
     m_include_stack.push_back(fs::weakly_canonical(path).string());
     for (pugi::xml_node c : main.doc.document_element().children())
         if (c.type() == pugi::node_element) top_level(c);
-    for (const auto &[name, value] : m_cli)
-        if (!m_params_used.count(name))
-            throw MesoError(fmt::format("-D {}={}: {} has no parameter '${}'", name, value, path, name));
+    if (overrides) {
+        std::vector<std::string> rest;
+        for (const std::string &o : *overrides) {
+            std::string key = bare_name(o);
+            bool top = std::any_of(std::begin(kMesoTopLevel), std::end(kMesoTopLevel), [&](const char *k) { return key == k; });
+            if (key.empty() || (top && !m_params_used.count(key))) rest.push_back(o);
+            else if (!m_params_used.count(key))
+                throw MesoError(fmt::format("-D {}: {} has no parameter '${}'", o, path, key));
+        }
+        *overrides = rest;
+    }
     if (!m_out.contains("camera")) throw MesoError(fmt::format("{}: no <sensor> (meso needs a camera)", path));
     if (!m_out.contains("integrator")) m_out["integrator"] = {{"type", "path"}};
     return m_out;

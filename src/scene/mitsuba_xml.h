@@ -19,10 +19,10 @@
 namespace meso {
 
 /// Translates a Mitsuba 3 XML file into a meso scene JSON object. When `overrides` is given,
-/// every `name=value` in it whose name is a bare identifier other than a meso top-level key
-/// (camera, integrator, ...) sets the XML parameter `$name` (as `mitsuba -D name=value`) and is
-/// removed from the list; one that the file never uses is an error. File names in the result
-/// are relative to the XML file's directory.
+/// every `name=value` in it whose name is a bare identifier sets the XML parameter `$name` (as
+/// `mitsuba -D name=value`) and is removed from the list; one that the file never uses is an
+/// error, unless it is a meso top-level key (camera, integrator, ...): that one stays in the list
+/// as a JSON override. File names in the result are relative to the XML file's directory.
 nlohmann::json mitsuba_xml_to_json(const std::string &path, std::vector<std::string> *overrides = nullptr);
 
 /// True for paths ending in .xml (case-insensitive).
