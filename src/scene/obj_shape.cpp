@@ -4,6 +4,8 @@
 //   face_normals  boolean   false     flat shading: the file's normals are discarded
 //   to_world      transform identity
 //   flip_normals  boolean   false     reverse normals and winding
+//   flip_tex_coords boolean false     v -> 1 - v (Mitsuba 3's OBJ default is true; Mitsuba XML
+//                                     scenes are translated with it set)
 //   displacement  object    none      as for every mesh shape
 //
 // Every object and group of the file becomes one mesh; `v`, `vt`, `vn` (and `v x y z r g b`
@@ -210,6 +212,8 @@ std::shared_ptr<Shape> create_obj_shape(const Properties &p) {
     } catch (const MesoError &e) {
         p.fail("filename", e.what());
     }
+    if (p.get_bool("flip_tex_coords", false))
+        for (Vec2 &uv : m.mesh.uvs) uv.y = 1.f - uv.y;
     return make_file_mesh_shape(std::move(m), p, file, "obj");
 }
 

@@ -18,6 +18,7 @@
 #include "lod/lod_build.h"
 #include "bsdf/material.h"
 #include "scene/gltf.h"
+#include "scene/mitsuba_xml.h"
 #include "scene/overrides.h"
 #include "core/properties.h"
 #include "core/registry.h"
@@ -244,8 +245,9 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, siz
 
 }  // namespace
 
-std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std::string> &overrides, size_t max_triangles) {
+std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std::string> &all_overrides, size_t max_triangles) {
     GltfCacheScope cache;  // shapes of one glTF file parse it once
+    std::vector<std::string> overrides = all_overrides;  // an XML scene takes its -D name=value parameters
     json doc;
     check_input_file(path, is_gltf_path(path) ? kMaxMeshFileBytes : kMaxSceneFileBytes, "scene file");
     std::string ext = fs::path(path).extension().string();
@@ -255,6 +257,8 @@ std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std
                                     ext.empty() ? "(the name has no extension)" : "'" + ext + "'"));
     if (is_gltf_path(path)) {
         doc = gltf_scene_to_json(path);
+    } else if (is_mitsuba_xml_path(path)) {
+        doc = mitsuba_xml_to_json(path, &overrides);
     } else {
         doc = parse_scene_json(path);
     }
