@@ -465,7 +465,7 @@ TEST(GenMapCli, ListAndErrors) {
     EXPECT_NE(r.out.find("correlation"), std::string::npos);
 
     r = run_cli_captured({"genmap", "fbm", "-o", tmp("cli_fbm.exr"), "--albedo", tmp("cli_fbm_albedo.exr")});
-    EXPECT_EQ(r.code, 1);
+    EXPECT_EQ(r.code, 2);  // a usage error
     EXPECT_EQ(r.err, "meso: error: --albedo: generator 'fbm' makes no albedo map (vgroove, sawtooth, twill and satin do)\n");
     EXPECT_FALSE(fs::exists(tmp("cli_fbm.exr")));  // nothing written after an error
 

@@ -57,14 +57,15 @@ bool no_temporaries(const fs::path &d) {
     return true;
 }
 
-/// Runs `args`, expects exit 1 with every needle in the message, no file changed or added, and
+/// Runs `args`, expects exit `code` (1: an error; 2: a usage error of an option) with every needle in the message, no file changed or added, and
 /// (with a huge --spp where it matters) an answer before any work.
-void expect_refused(const fs::path &d, const std::string &args, const std::vector<std::string> &needles) {
+void expect_refused(const fs::path &d, const std::string &args, const std::vector<std::string> &needles,
+                    int code = 1) {
     const auto before = checksums(d);
     const auto t0 = std::chrono::steady_clock::now();
     CliResult r = run_binary(args, d.string());
     const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    EXPECT_EQ(r.code, 1) << args << "\n" << r.out;
+    EXPECT_EQ(r.code, code) << args << "\n" << r.out;
     EXPECT_EQ(r.out.rfind("meso: error: ", 0), 0u) << r.out;
     for (const auto &n : needles) EXPECT_NE(r.out.find(n), std::string::npos) << "missing '" << n << "' in: " << r.out;
     EXPECT_EQ(checksums(d), before) << args;
@@ -181,18 +182,18 @@ TEST(OutputSafety, AFailedRunLeavesThePreviousSetIntact) {
 TEST(OutputSafety, OptionRangesAreCheckedBeforeTheWork) {
     fs::path d = fresh("ranges");
     const std::string r = "render scene.json -o x.exr -q ";
-    expect_refused(d, r + "--spp 0", {"--spp 0: expected a sample count >= 1"});
-    expect_refused(d, r + "--time 0", {"--time 0: expected a finite number of seconds > 0"});
-    expect_refused(d, r + "--time inf", {"--time inf: expected a finite number of seconds > 0"});
-    expect_refused(d, r + "--time nan", {"--time nan: expected a finite number of seconds > 0"});
-    expect_refused(d, r + "--spp 1000000 --seed -5", {"--seed -5: expected a seed >= 0"});
-    expect_refused(d, r + "--spp 1000000 --threads -1", {"--threads -1: expected 1 to"});
-    expect_refused(d, r + "--spp 1000000 --threads 100000", {"--threads 100000: expected 1 to", "x the"});
-    expect_refused(d, r + "--spp 1000000 --exposure nan", {"--exposure nan: expected a finite number of stops"});
+    expect_refused(d, r + "--spp 0", {"--spp 0: expected a sample count >= 1"}, 2);
+    expect_refused(d, r + "--time 0", {"--time 0: expected a finite number of seconds > 0"}, 2);
+    expect_refused(d, r + "--time inf", {"--time inf: expected a finite number of seconds > 0"}, 2);
+    expect_refused(d, r + "--time nan", {"--time nan: expected a finite number of seconds > 0"}, 2);
+    expect_refused(d, r + "--spp 1000000 --seed -5", {"--seed -5: expected a seed >= 0"}, 2);
+    expect_refused(d, r + "--spp 1000000 --threads -1", {"--threads -1: expected 1 to"}, 2);
+    expect_refused(d, r + "--spp 1000000 --threads 100000", {"--threads 100000: expected 1 to", "x the"}, 2);
+    expect_refused(d, r + "--spp 1000000 --exposure nan", {"--exposure nan: expected a finite number of stops"}, 2);
     expect_refused(d, r + "--spp 1000000 --crop 0,0,33,24", {"--crop 0,0,33,24: the window must lie in the 32x24 image"});
-    expect_refused(d, r + "--spp 1000000 --crop 0,0,1", {"--crop '0,0,1': expected X0,Y0,X1,Y1"});
-    expect_refused(d, "perf scene.json --threads 0", {"--threads 0: expected 1 to"});
-    expect_refused(d, "convert scene.json y.png --exposure inf", {"--exposure inf: expected a finite number of stops"});
+    expect_refused(d, r + "--spp 1000000 --crop 0,0,1", {"--crop '0,0,1': expected X0,Y0,X1,Y1"}, 2);
+    expect_refused(d, "perf scene.json --threads 0", {"--threads 0: expected 1 to"}, 2);
+    expect_refused(d, "convert scene.json y.png --exposure inf", {"--exposure inf: expected a finite number of stops"}, 2);
 }
 
 TEST(OutputSafety, FilmBeyondPhysicalMemoryIsRefusedWithThePlanFigure) {

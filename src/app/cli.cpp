@@ -52,6 +52,10 @@ int run_cli(int argc, char **argv) {
     try {
         for (auto &[sub, act] : actions)
             if (sub->parsed()) return act();
+    } catch (const UsageError &e) {
+        if (dist::size() > 1) dist::abort_all(e.what());
+        std::fprintf(stderr, "meso: error: %s\n", e.what());
+        return 2;
     } catch (const std::exception &e) {
         // Under MPI with several ranks the others may wait in a collective: end the whole job
         // (mpirun then exits non-zero; no output is written, rank 0 writes only after the reduce).

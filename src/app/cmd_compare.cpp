@@ -67,7 +67,7 @@ ErrorImageInfo write_error_image(const CompareOptions &o, const std::string &sta
         info.log_lo = o.error_range[0];
         info.log_hi = o.error_range[1];
         if (!(info.log_hi > info.log_lo))
-            throw MesoError(fmt::format("--error-range: LO ({}) must be below HI ({})", info.log_lo, info.log_hi));
+            throw UsageError(fmt::format("--error-range: LO ({}) must be below HI ({})", info.log_lo, info.log_hi));
     } else if (emax > 0) {
         info.log_hi = std::log10(emax);
         info.log_lo = std::max(std::log10(emin), info.log_hi - 8.0);

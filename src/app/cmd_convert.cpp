@@ -64,7 +64,7 @@ int run_convert(const ConvertOptions &o) {
     const std::string ext = lower_extension(o.out);
     if (ext != ".exr" && ext != ".png" && ext != ".pfm")
         throw MesoError(fmt::format("{}: unsupported output format '{}' (expected .exr, .png or .pfm)", o.out, ext));
-    if (!std::isfinite(o.exposure)) throw MesoError(fmt::format("--exposure {}: expected a finite number of stops", o.exposure));
+    if (!std::isfinite(o.exposure)) throw UsageError(fmt::format("--exposure {}: expected a finite number of stops", o.exposure));
     OutputSet set;
     set.add_input(o.in, "the input image");
     const std::string staged = set.add_output("output", o.out);

@@ -113,7 +113,7 @@ int run_genmap(const GenmapOptions &o) {
     GeneratedMap g = generate_height_map(o.kind, params, o.kind);
     double gen_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (!o.albedo.empty() && g.albedo.width == 0)
-        throw MesoError(fmt::format("--albedo: generator '{}' makes no albedo map (vgroove, sawtooth, twill and "
+        throw UsageError(fmt::format("--albedo: generator '{}' makes no albedo map (vgroove, sawtooth, twill and "
                                     "satin do)",
                                     o.kind));
     HeightMapStats st = height_map_stats(g.height, g.periodic);

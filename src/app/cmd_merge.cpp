@@ -239,7 +239,7 @@ json merged_record(const std::vector<Part> &parts) {
 int run_merge(const MergeArgs &a) {
     if (dist::rank() != 0) return 0;  // nothing to distribute: under mpirun only rank 0 merges
     // The outputs are checked before anything is read: none may replace a part or its record.
-    if (!std::isfinite(a.exposure)) throw MesoError(fmt::format("--exposure {}: expected a finite number of stops", a.exposure));
+    if (!std::isfinite(a.exposure)) throw UsageError(fmt::format("--exposure {}: expected a finite number of stops", a.exposure));
     fs::path out = a.output;
     if (out.extension() != ".exr") throw MesoError(fmt::format("{}: the output must be an .exr file", a.output));
     fs::path png = out, js = out;

@@ -63,7 +63,7 @@ int run_perf(const PerfArgs &a) {
     const int max_threads = 4 * int(std::max(1u, std::thread::hardware_concurrency()));
     for (int t : a.threads)
         if (t < 1 || t > max_threads)
-            throw MesoError(fmt::format("--threads {}: expected 1 to {} (4 x the {} cores)", t, max_threads, max_threads / 4));
+            throw UsageError(fmt::format("--threads {}: expected 1 to {} (4 x the {} cores)", t, max_threads, max_threads / 4));
     OutputSet set;  // --json is checked before any work and may not replace the scene
     set.add_input(a.scene, "the scene file");
     const std::string json_tmp = a.json_out.empty() ? "" : set.add_output("--json", a.json_out, "", OutputKind::Record);

@@ -48,15 +48,15 @@ std::vector<int> parse_scales(const std::string &s) {
             size_t pos = 0;
             const int f = std::stoi(tok, &pos);
             if (pos != tok.size() || f < 2) throw std::invalid_argument("");
-            if (!out.empty() && f <= out.back()) throw MesoError(fmt::format("--scales {}: factors must increase", s));
+            if (!out.empty() && f <= out.back()) throw UsageError(fmt::format("--scales {}: factors must increase", s));
             out.push_back(f);
         } catch (const std::invalid_argument &) {
-            throw MesoError(fmt::format("--scales {}: expected comma-separated integers >= 2, e.g. 8,64", s));
+            throw UsageError(fmt::format("--scales {}: expected comma-separated integers >= 2, e.g. 8,64", s));
         } catch (const std::out_of_range &) {
-            throw MesoError(fmt::format("--scales {}: factor out of range", s));
+            throw UsageError(fmt::format("--scales {}: factor out of range", s));
         }
     }
-    if (out.empty()) throw MesoError("--scales: expected at least one factor, e.g. 8,64");
+    if (out.empty()) throw UsageError("--scales: expected at least one factor, e.g. 8,64");
     return out;
 }
 
@@ -83,7 +83,7 @@ prefilter::PipelineOptions validate(const PrefilterFlags &f) {
     o.interreflections = parse_choice("--interreflections", f.interreflections, {"on", "off"}) == 0;
     o.flow_projected_area = parse_choice("--flow", f.flow, {"visible", "eq5"}) == 0;
     if (!(o.height_scale > 0) || !std::isfinite(o.height_scale) || !(o.tile_size > 0) || !std::isfinite(o.tile_size))
-        throw MesoError("--height-scale and --tile-size must be positive and finite");
+        throw UsageError("--height-scale and --tile-size must be positive and finite");
     o.scales = parse_scales(f.scales);
     if (o.M < 1 || o.N < 1 || o.N > 64 || o.lobes < 1 || o.lobes > 16)
         throw MesoError("prefilter: need M >= 1, 1 <= N <= 64, 1 <= lobes <= 16");

@@ -53,7 +53,7 @@ std::array<int, 4> parse_crop(const std::string &text) {
         const char *b = text.data() + pos, *e = text.data() + end;
         auto [p, ec] = std::from_chars(b, e, c[i]);
         if (b == e || ec != std::errc() || p != e || (i < 3 && end == text.size()))
-            throw MesoError(fmt::format("--crop '{}': expected X0,Y0,X1,Y1, four integers (the pixel window "
+            throw UsageError(fmt::format("--crop '{}': expected X0,Y0,X1,Y1, four integers (the pixel window "
                                         "[X0, X1) x [Y0, Y1) of the full image)", text));
         pos = end + 1;
     }
@@ -72,15 +72,15 @@ Image crop_image(const Image &img, const std::array<int, 4> &c) {
 /// What the options leave to check before any work: ranges (each error names the option and the
 /// allowed range). Crop windows are checked against the camera once the scene is loaded.
 void check_ranges(const RenderArgs &a) {
-    if (a.given_spp && a.spp < 1) throw MesoError(fmt::format("--spp {}: expected a sample count >= 1", a.spp));
+    if (a.given_spp && a.spp < 1) throw UsageError(fmt::format("--spp {}: expected a sample count >= 1", a.spp));
     if (a.given_time && !(std::isfinite(a.time) && a.time > 0))
-        throw MesoError(fmt::format("--time {}: expected a finite number of seconds > 0", a.time));
-    if (a.given_seed && a.seed < 0) throw MesoError(fmt::format("--seed {}: expected a seed >= 0", a.seed));
+        throw UsageError(fmt::format("--time {}: expected a finite number of seconds > 0", a.time));
+    if (a.given_seed && a.seed < 0) throw UsageError(fmt::format("--seed {}: expected a seed >= 0", a.seed));
     const int max_threads = 4 * int(std::max(1u, std::thread::hardware_concurrency()));
     if (a.given_threads && (a.threads < 1 || a.threads > max_threads))
-        throw MesoError(fmt::format("--threads {}: expected 1 to {} (4 x the {} cores)", a.threads, max_threads, max_threads / 4));
-    if (!std::isfinite(a.exposure)) throw MesoError(fmt::format("--exposure {}: expected a finite number of stops", a.exposure));
-    if (!a.convergence.empty() && a.reference.empty()) throw MesoError("--convergence needs --reference");
+        throw UsageError(fmt::format("--threads {}: expected 1 to {} (4 x the {} cores)", a.threads, max_threads, max_threads / 4));
+    if (!std::isfinite(a.exposure)) throw UsageError(fmt::format("--exposure {}: expected a finite number of stops", a.exposure));
+    if (!a.convergence.empty() && a.reference.empty()) throw UsageError("--convergence needs --reference");
     if (a.has_crop) parse_crop(a.crop);  // its syntax here; the window against the camera once loaded
 }
 

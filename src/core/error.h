@@ -12,6 +12,13 @@ public:
     explicit MesoError(const std::string &msg) : std::runtime_error(msg) {}
 };
 
+/// A command-line error (an option's value out of range, options that do not go together): the
+/// command line prints it like any MesoError but exits with 2, as for CLI11's parse errors.
+class UsageError : public MesoError {
+public:
+    explicit UsageError(const std::string &msg) : MesoError(msg) {}
+};
+
 /// Builds "file: path: message", leaving out empty parts.
 std::string located_message(const std::string &file, const std::string &path, const std::string &msg);
 

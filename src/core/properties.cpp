@@ -259,7 +259,7 @@ std::string quoted_choices(const std::vector<std::string> &names) {
 int parse_choice(const std::string &what, const std::string &value, const std::vector<std::string> &names) {
     for (size_t i = 0; i < names.size(); ++i)
         if (names[i] == value) return int(i);
-    throw MesoError(fmt::format("{}: expected {}, got \"{}\"", what, quoted_choices(names), value));
+    throw UsageError(fmt::format("{}: expected {}, got \"{}\"", what, quoted_choices(names), value));
 }
 
 int Properties::choice_index(const std::string &key, const std::string *def, const std::vector<std::string> &names) const {

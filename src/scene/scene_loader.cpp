@@ -1,4 +1,4 @@
-// load_scene: scene file (JSON, or a .gltf/.glb translated to the same JSON) → Scene.
+// load_scene: scene file (JSON, or a .gltf/.glb or Mitsuba 3 .xml translated to the same JSON) → Scene.
 // The file is parsed, -D overrides are applied to the JSON, and then every object is
 // created through the plugin registry, so a glTF scene and a hand-written one take the
 // same path and give the same errors. The BVH is not built here (Scene::build, called
@@ -252,8 +252,8 @@ std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std
     check_input_file(path, is_gltf_path(path) ? kMaxMeshFileBytes : kMaxSceneFileBytes, "scene file");
     std::string ext = fs::path(path).extension().string();
     for (char &c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-    if (ext != ".json" && !is_gltf_path(path))
-        throw MesoError(fmt::format("{}: unsupported scene format {} (meso reads .json, .gltf and .glb)", path,
+    if (ext != ".json" && !is_gltf_path(path) && !is_mitsuba_xml_path(path))
+        throw MesoError(fmt::format("{}: unsupported scene format {} (meso reads .json, .gltf, .glb and Mitsuba 3 .xml)", path,
                                     ext.empty() ? "(the name has no extension)" : "'" + ext + "'"));
     if (is_gltf_path(path)) {
         doc = gltf_scene_to_json(path);
