@@ -25,6 +25,9 @@ struct Image {
 /// encoded files (PNG/JPEG colour textures) to linear; float formats are taken as linear.
 /// Throws MesoError("<path>: cannot read image: <reason>") on failure.
 Image read_image(const std::string &path, bool linearize_srgb = false);
+/// Throws MesoError naming the file when it is an EXR with a corrupt header (an attribute claiming
+/// more bytes than the file has, which OpenEXR would allocate); other files pass. read_image calls it.
+void check_exr_headers(const std::string &path);
 /// Full-float EXR (RGB or the image's channels). Throws MesoError on failure.
 void write_exr(const std::string &path, const Image &img);
 /// 8-bit sRGB PNG of exposure-scaled, clamped linear RGB.

@@ -106,6 +106,38 @@ void check_image(const std::string &path, const Image &img) {
         write_error(path, "pixel buffer size does not match the image size");
 }
 
+}  // namespace
+
+/// OpenEXR stores channels sorted by name and OIIO returns them in the file's order (RGBA
+/// first): write_exr's R, G, B, A, channel4, ..., channel30 would come back as R, G, B, A,
+/// channel10, ..., channel19, channel20, ..., channel4, ..., channel9. Channels named that
+/// way (R, G, B, A, "channelN") are put back at index N; other namings are kept as read.
+static void restore_written_order(Image &img, const std::vector<std::string> &names) {
+    const int C = img.channels;
+    if (C <= 4 || int(names.size()) != C) return;
+    std::vector<int> dst(size_t(C), -1);
+    std::vector<char> used(size_t(C), 0);
+    for (int k = 0; k < C; ++k) {
+        const std::string &n = names[size_t(k)];
+        int i = -1;
+        if (n == "R") i = 0;
+        else if (n == "G") i = 1;
+        else if (n == "B") i = 2;
+        else if (n == "A") i = 3;
+        else if (n.size() > 7 && n.size() < 12 && n.compare(0, 7, "channel") == 0 &&
+                 std::all_of(n.begin() + 7, n.end(), [](char ch) { return ch >= '0' && ch <= '9'; }))
+            i = std::stoi(n.substr(7));
+        if (i < 0 || i >= C || used[size_t(i)]) return;
+        used[size_t(i)] = 1;
+        dst[size_t(k)] = i;
+    }
+    std::vector<float> out(img.data.size());
+    const size_t px = size_t(img.width) * img.height;
+    for (size_t p = 0; p < px; ++p)
+        for (int k = 0; k < C; ++k) out[p * C + size_t(dst[size_t(k)])] = img.data[p * C + size_t(k)];
+    img.data.swap(out);
+}
+
 /// OpenEXR trusts each header attribute's declared size: a 570-byte file declaring a 1.9 GB
 /// string made the reader allocate 2 GB for 2.5 s before failing (found by fuzz/, issue 24).
 /// So an EXR's headers are walked first, without reading values, and an attribute that claims
@@ -142,38 +174,6 @@ void check_exr_headers(const std::string &path) {
                                          size, file_size - std::min(file_size, at)));
         f.seekg(std::streamoff(size), std::ios::cur);
     }
-}
-
-}  // namespace
-
-/// OpenEXR stores channels sorted by name and OIIO returns them in the file's order (RGBA
-/// first): write_exr's R, G, B, A, channel4, ..., channel30 would come back as R, G, B, A,
-/// channel10, ..., channel19, channel20, ..., channel4, ..., channel9. Channels named that
-/// way (R, G, B, A, "channelN") are put back at index N; other namings are kept as read.
-static void restore_written_order(Image &img, const std::vector<std::string> &names) {
-    const int C = img.channels;
-    if (C <= 4 || int(names.size()) != C) return;
-    std::vector<int> dst(size_t(C), -1);
-    std::vector<char> used(size_t(C), 0);
-    for (int k = 0; k < C; ++k) {
-        const std::string &n = names[size_t(k)];
-        int i = -1;
-        if (n == "R") i = 0;
-        else if (n == "G") i = 1;
-        else if (n == "B") i = 2;
-        else if (n == "A") i = 3;
-        else if (n.size() > 7 && n.size() < 12 && n.compare(0, 7, "channel") == 0 &&
-                 std::all_of(n.begin() + 7, n.end(), [](char ch) { return ch >= '0' && ch <= '9'; }))
-            i = std::stoi(n.substr(7));
-        if (i < 0 || i >= C || used[size_t(i)]) return;
-        used[size_t(i)] = 1;
-        dst[size_t(k)] = i;
-    }
-    std::vector<float> out(img.data.size());
-    const size_t px = size_t(img.width) * img.height;
-    for (size_t p = 0; p < px; ++p)
-        for (int k = 0; k < C; ++k) out[p * C + size_t(dst[size_t(k)])] = img.data[p * C + size_t(k)];
-    img.data.swap(out);
 }
 
 Image read_image(const std::string &path, bool linearize_srgb) {
