@@ -330,3 +330,18 @@ TEST(ImageChannels, ManyChannelsRoundTripInOrder) {
     ASSERT_EQ(back.channels, 31);
     for (size_t i = 0; i < img.data.size(); ++i) ASSERT_EQ(back.data[i], img.data[i]) << "index " << i;
 }
+
+// Found by the scene-loader fuzzer (issue 24, docs/fuzzing.md): a 570-byte EXR whose 'capDate'
+// attribute claims 1.9 GB made OpenEXR allocate 2 GB before failing. The header walk refuses it
+// at once, naming the file and the attribute.
+TEST(ImageRead, ExrAttributeClaimingMoreThanTheFileIsRefusedBeforeReading) {
+    const std::string path = std::string(MESO_SOURCE_DIR) + "/fuzz/regressions/exr_attribute_claims_1.9GB.exr";
+    try {
+        meso::read_image(path);
+        FAIL() << "read_image accepted " << path;
+    } catch (const meso::MesoError &e) {
+        std::string msg = e.what();
+        EXPECT_NE(msg.find(path), std::string::npos) << msg;
+        EXPECT_NE(msg.find("corrupt EXR header: attribute 'capDate' claims 1953702419 bytes"), std::string::npos) << msg;
+    }
+}

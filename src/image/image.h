@@ -26,6 +26,9 @@ struct Image {
 /// encoded files (PNG/JPEG colour textures) to linear; float formats are taken as linear.
 /// Throws MesoError("<path>: cannot read image: <reason>") on failure.
 Image read_image(const std::string &path, bool linearize_srgb = false);
+/// Throws MesoError naming the file when it is an EXR with a corrupt header (an attribute claiming
+/// more bytes than the file has, which OpenEXR would allocate); other files pass. read_image calls it.
+void check_exr_headers(const std::string &path);
 /// Provenance of an image: string attributes stored in the EXR header, each named "meso:KEY"
 /// (scene_sha1, seed, spp, crop, full_size, version; see `meso render`).
 using ImageMetadata = std::vector<std::pair<std::string, std::string>>;
