@@ -197,11 +197,15 @@ TEST(Robustness, RaysStartingOnSurfacesDoNotSelfIntersect) {
 }
 
 TEST(Robustness, ZeroAreaTrianglesAndGrazingCamerasStayFinite) {
-    // A plane seen exactly edge-on and a degenerate (zero-scale) disk: no NaN anywhere.
+    // A plane seen exactly edge-on, a disk squashed to the smallest scale a to_world accepts
+    // (1e-8: smaller scales are refused as non-invertible) and an OBJ whose triangle has three
+    // collinear vertices (zero area): no NaN anywhere.
+    write_temp("degenerate.obj", "v 0 0 0\nv 0.5 0.5 0\nv 1 1 0\nv 0 1 0.2\nf 1 2 3\nf 1 3 4\n");
     auto s = load_json_scene("degenerate.json", R"({
       "camera": {"type": "perspective", "origin": [0, 0, 5], "target": [0, 0, 0], "fov": 60, "width": 32, "height": 32},
       "shapes": [{"type": "rectangle", "to_world": {"rotate": {"axis": [1, 0, 0], "angle": 90}}},
-                 {"type": "disk", "segments": 3, "to_world": {"scale": [1, 1e-30, 1]}},
+                 {"type": "disk", "segments": 3, "to_world": {"scale": [1, 1e-8, 1]}},
+                 {"type": "obj", "filename": "degenerate.obj"},
                  {"type": "sphere", "radius": 0.5, "material": {"type": "conductor", "alpha": 1e-6}}],
       "lights": [{"type": "constant", "radiance": 1}, {"type": "point", "position": [0, 0, 0.5], "intensity": 1}]
     })");
