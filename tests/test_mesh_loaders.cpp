@@ -217,3 +217,20 @@ TEST(MeshLoaders, RenderedQuadMatchesAlbedo) {
         EXPECT_EQ(r.nan_count, 0);
     }
 }
+
+TEST(MeshLoaders, BareMeshFileIsAFramedLitScene) {
+    // `meso render model.ply` just works: the framing camera looks at the mesh's bounding-box centre
+    // from +z, the mesh fills the middle of the image with the grey material, lit (not black), and
+    // the corners see the constant environment (radiance 0.6, directional light not seen directly).
+    for (const char *name : {"quad.obj", "grid_le.ply"}) {
+        SCOPED_TRACE(name);
+        auto s = load_scene(fixture(name), {"camera.width=32", "camera.height=24"});
+        s->build();
+        RenderResult r = test::render_scene(*s, 16);
+        EXPECT_EQ(r.nan_count, 0);
+        const float centre = r.image.at(16, 12, 1), corner = r.image.at(0, 0, 1);
+        EXPECT_NEAR(corner, 0.6f, 1e-4f);
+        EXPECT_GT(centre, 0.1f);                       // the grey mesh, lit
+        EXPECT_GT(std::abs(centre - corner), 0.01f);   // and not the background
+    }
+}

@@ -2,6 +2,7 @@
 // translating a whole file into a meso scene JSON document (see gltf.h and
 // docs/scene-format.md, "glTF files as scenes").
 #include "scene/gltf.h"
+#include "scene/default_scene.h"
 #include <algorithm>
 #include <cctype>
 #include <cmath>
@@ -629,12 +630,7 @@ json framing_camera(const std::vector<GltfPrimitive> &prims) {
     Vec3 bmin(Infinity, Infinity, Infinity), bmax(-Infinity, -Infinity, -Infinity);
     for (const auto &p : prims)
         for (const Vec3 &v : p.mesh.positions) bmin = vmin(bmin, v), bmax = vmax(bmax, v);
-    if (!(bmin.x <= bmax.x)) bmin = Vec3(-1, -1, -1), bmax = Vec3(1, 1, 1);
-    Vec3 c = (bmin + bmax) * 0.5f;
-    float r = std::max(1e-3f, length(bmax - bmin) * 0.5f);
-    float d = r / std::sin(radians(20.f)) * 1.05f;
-    return {{"type", "perspective"}, {"origin", vec3_json(c + Vec3(0, 0, d))}, {"target", vec3_json(c)},
-            {"up", json::array({0, 1, 0})}, {"fov", 40}, {"fov_axis", "y"}, {"width", 640}, {"height", 480}};
+    return framing_camera(bmin, bmax);
 }
 
 /// The scene's "shapes" (one `gltf` shape per primitive) and "materials" (one named meso

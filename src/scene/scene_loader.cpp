@@ -17,6 +17,7 @@
 #include "lights/light.h"
 #include "lod/lod_build.h"
 #include "bsdf/material.h"
+#include "scene/default_scene.h"
 #include "scene/gltf.h"
 #include "scene/mitsuba_xml.h"
 #include "scene/overrides.h"
@@ -249,14 +250,18 @@ std::unique_ptr<Scene> load_scene(const std::string &path, const std::vector<std
     GltfCacheScope cache;  // shapes of one glTF file parse it once
     std::vector<std::string> overrides = all_overrides;  // an XML scene takes its -D name=value parameters
     json doc;
-    check_input_file(path, is_gltf_path(path) ? kMaxMeshFileBytes : kMaxSceneFileBytes, "scene file");
+    const bool mesh_file = is_gltf_path(path) || is_mesh_scene_path(path);
+    check_input_file(path, mesh_file ? kMaxMeshFileBytes : kMaxSceneFileBytes, "scene file");
     std::string ext = fs::path(path).extension().string();
     for (char &c : ext) c = char(std::tolower(static_cast<unsigned char>(c)));
-    if (ext != ".json" && !is_gltf_path(path) && !is_mitsuba_xml_path(path))
-        throw MesoError(fmt::format("{}: unsupported scene format {} (meso reads .json, .gltf, .glb and Mitsuba 3 .xml)", path,
+    if (ext != ".json" && !mesh_file && !is_mitsuba_xml_path(path))
+        throw MesoError(fmt::format("{}: unsupported scene format {} (meso reads .json, .gltf, .glb, .obj, .ply and "
+                                    "Mitsuba 3 .xml)", path,
                                     ext.empty() ? "(the name has no extension)" : "'" + ext + "'"));
     if (is_gltf_path(path)) {
         doc = gltf_scene_to_json(path);
+    } else if (is_mesh_scene_path(path)) {
+        doc = mesh_scene_to_json(path);  // a bare mesh: framed, grey, lit (scene/default_scene.h)
     } else if (is_mitsuba_xml_path(path)) {
         doc = mitsuba_xml_to_json(path, &overrides);
     } else {
