@@ -147,6 +147,11 @@ std::vector<Case> battery_cases() {
         d.lossless_tol = 2e-3;
     }
     add("plastic_beckmann_1", R"({"type":"plastic","distribution":"beckmann","alpha":1.0})");
+    // gltf_pbr: metal, dielectric, rough, smooth-ish (alpha = roughness^2 = 0.05)
+    add("gltf_pbr_metal", R"({"type":"gltf_pbr","base_color":[0.9,0.6,0.3],"metallic":1,"roughness":0.5})");
+    add("gltf_pbr_dielectric", R"({"type":"gltf_pbr","base_color":[0.8,0.4,0.1],"metallic":0,"roughness":0.5})");
+    add("gltf_pbr_rough_white", R"({"type":"gltf_pbr","base_color":1,"metallic":0,"roughness":1})");
+    add("gltf_pbr_smoothish_mix", R"({"type":"gltf_pbr","base_color":[0.5,0.7,0.9],"metallic":0.5,"roughness":0.2236068})");
     // blinnphong
     add("blinnphong_20_mix", R"({"type":"blinnphong","exponent":20,"specular_reflectance":0.7,"diffuse_reflectance":0.3})");
     add("blinnphong_200_fresnel", R"({"type":"blinnphong","exponent":200,"eta":1.5})").jacobian = true;
