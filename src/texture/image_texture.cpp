@@ -25,6 +25,9 @@
 //   raw          bool    false         true: no sRGB decoding of 8/16-bit data (normal maps,
 //                                      roughness, heights)
 //   scale        float   1             multiplier, finite
+//   channel      string  "rgb"         "rgb" | "r" | "g" | "b" | "a": one channel of the file as
+//                                      a grey texture (glTF's metallicRoughnessTexture: "b"
+//                                      metallic, "g" roughness); "rgb" keeps grey files grey
 #include <cmath>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -116,14 +119,24 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         tiling = Vec2(t[0], t[1]);
     }
 
+    const int channel = p.get_enum<int>("channel", "rgb", {{"rgb", -1}, {"r", 0}, {"g", 1}, {"b", 2}, {"a", 3}});
+
     const Image img = read_image_param(p, "filename", file, raw);
-    // Keep 1 channel for grey (+alpha) images, RGB otherwise.
-    int nc = img.channels <= 2 ? 1 : 3;
+    // Keep 1 channel for grey (+alpha) images, RGB otherwise; `channel` picks one.
+    int nc = img.channels <= 2 ? 1 : 3, first = 0;
+    if (channel >= 0) {
+        nc = 1;
+        if (channel == 3) first = img.channels == 2 || img.channels == 4 ? img.channels - 1 : -1;
+        else first = img.channels >= 3 ? channel : (img.channels <= 2 ? 0 : -1);
+        if (first < 0)
+            p.fail("channel", fmt::format("{}: the image has {} channel(s), no {}", file, img.channels,
+                                          channel == 3 ? "alpha" : "such channel"));
+    }
     std::vector<float> data(size_t(img.width) * img.height * nc);
     long bad = 0;
     for (size_t i = 0; i < size_t(img.width) * img.height; ++i)
         for (int c = 0; c < nc; ++c) {
-            float x = img.data[i * img.channels + c];
+            float x = img.data[i * img.channels + first + c];
             if (!std::isfinite(x)) {
                 ++bad;
                 x = 0.f;
@@ -135,7 +148,7 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
     return std::make_shared<BitmapTexture>(std::move(mip), filter, max_anisotropy, scale, tiling, file);
 }
 
-MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, max_anisotropy, wrap_mode, raw, scale, tiling)",
+MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, max_anisotropy, wrap_mode, raw, scale, tiling, channel)",
                       create_bitmap);
 MESO_REGISTER_TEXTURE("image", "alias of 'bitmap'", create_bitmap);
 
