@@ -176,6 +176,23 @@ TEST(TextureBitmap, SrgbDecodeOf8BitPng) {
     EXPECT_NEAR(raw->eval(at(0.25f, 0.5f)).r, 128 / 255.0, 1e-5);
 }
 
+TEST(TextureBitmap, ChannelSelectsOneChannelAsGrey) {
+    // glTF's metallicRoughness texture: B = metallic, G = roughness (raw, no sRGB decoding).
+    write_image("orm.png", 2, 1, 3, {10, 128, 255, 0, 64, 30});
+    auto g = make_texture({{"type", "bitmap"}, {"filename", "orm.png"}, {"filter_type", "nearest"}, {"raw", true}, {"channel", "g"}});
+    auto b = make_texture({{"type", "bitmap"}, {"filename", "orm.png"}, {"filter_type", "nearest"}, {"raw", true}, {"channel", "b"}});
+    Spectrum sg = g->eval(at(0.25f, 0.5f)), sb = b->eval(at(0.75f, 0.5f));
+    EXPECT_NEAR(sg.r, 128 / 255.0, 1e-5);
+    EXPECT_NEAR(sg.b, 128 / 255.0, 1e-5);  // grey
+    EXPECT_NEAR(g->eval_float(at(0.75f, 0.5f)), 64 / 255.0, 1e-5);
+    EXPECT_NEAR(sb.g, 30 / 255.0, 1e-5);
+    EXPECT_NEAR(b->mean().r, (255 + 30) / 2.0 / 255.0, 1e-5);
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "orm.png"}, {"channel", "a"}}),
+              "scene.json: textures.tex.channel: " + tmp_dir() + "/orm.png: the image has 3 channel(s), no alpha");
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "orm.png"}, {"channel", "x"}}),
+              "scene.json: textures.tex.channel: expected \"rgb\", \"r\", \"g\", \"b\" or \"a\", got \"x\"");
+}
+
 TEST(TextureBitmap, MissingAndMalformedFiles) {
     EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "missing.png"}}),
               "scene.json: textures.tex.filename: file not found: '" + tmp_dir() + "/missing.png'");
