@@ -466,3 +466,46 @@ TEST(Gltf, BaseColourTextureRendersInTheRightQuadrants) {
             }
     }
 }
+
+TEST(Gltf, TextureFactorsEmbeddedImagesAndUnsupportedFeatures) {
+    // The .glb's images live in bufferViews: written to the temporary directory and read back.
+    json g = gltf_scene_to_json(fixture("textured.glb"));
+    const std::string embedded = g["materials"]["checker"]["base_color"]["filename"];
+    EXPECT_TRUE(fs::exists(embedded)) << embedded;
+    EXPECT_EQ(fs::path(embedded).extension(), ".png");
+
+    // A tinted base colour multiplies the texture; metallic/roughness factors scale the channels;
+    // a normal texture wraps the material in normalmap; unsupported features warn naming the material.
+    std::ifstream in(fixture("textured.gltf"));
+    json doc = json::parse(in);
+    json &pbr = doc["materials"][0]["pbrMetallicRoughness"];
+    pbr["baseColorFactor"] = json::array({0.5, 1.0, 1.0, 1.0});
+    pbr["metallicFactor"] = 0.25;
+    pbr["roughnessFactor"] = 0.5;
+    pbr["baseColorTexture"]["extensions"] = {{"KHR_texture_transform", {{"scale", {2, 2}}}}};
+    doc["materials"][0]["normalTexture"] = {{"index", 0}, {"scale", 0.5}};
+    doc["materials"][0]["alphaMode"] = "BLEND";
+    GltfTemp tmp;
+    std::ifstream png(fixture("checker.png"), std::ios::binary), mr(fixture("mr.png"), std::ios::binary);
+    tmp.write("checker.png", std::string(std::istreambuf_iterator<char>(png), {}));
+    tmp.write("mr.png", std::string(std::istreambuf_iterator<char>(mr), {}));
+    std::string p = tmp.write("t.gltf", doc.dump());
+    testing::internal::CaptureStderr();
+    json j = gltf_scene_to_json(p);
+    const std::string err = testing::internal::GetCapturedStderr();
+    const json &m = j["materials"]["checker"];
+    ASSERT_EQ(m["type"], "normalmap");
+    EXPECT_EQ(m["normals"], "checker.png");
+    const json &b = m["bsdf"];
+    EXPECT_EQ(b["type"], "gltf_pbr");
+    EXPECT_EQ(b["base_color"]["type"], "combine");
+    EXPECT_EQ(b["base_color"]["op"], "product");
+    EXPECT_NEAR(b["metallic"]["scale"].get<double>(), 0.25, 1e-6);
+    EXPECT_NEAR(b["roughness"]["scale"].get<double>(), 0.5, 1e-6);
+    EXPECT_NE(err.find("material 'checker': baseColorTexture: extension KHR_texture_transform is not supported"), std::string::npos) << err;
+    EXPECT_NE(err.find("material 'checker': normalTexture scale 0.5 is ignored"), std::string::npos) << err;
+    EXPECT_NE(err.find("material 'checker': alphaMode BLEND is not supported"), std::string::npos) << err;
+    auto s = load_scene(p, {"camera.width=8", "camera.height=8"});
+    s->build();
+    EXPECT_EQ(test::render_scene(*s, 2).nan_count, 0);
+}
