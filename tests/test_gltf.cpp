@@ -509,3 +509,42 @@ TEST(Gltf, TextureFactorsEmbeddedImagesAndUnsupportedFeatures) {
     s->build();
     EXPECT_EQ(test::render_scene(*s, 2).nan_count, 0);
 }
+
+TEST(Gltf, NormalTextureTiltsTowardsTheBitangent) {
+    // glTF tangent space: red = +u (the tangent), green = the bitangent cross(N, T)·w, which on
+    // the fixture quad (u along +x, v down the image = along −y) is +y. normal_up.png tilts the
+    // normal to n' = (0.003, 0.587, 0.810). A directional light from (0, 1, 1)/√2 then gives
+    // cos = n'·l = 0.987 instead of the flat 0.707 (a flipped green channel would give 0.157).
+    // Ratio of the mapped to the flat render of the diffuse-like quad: ≈ 0.987/0.707 = 1.40,
+    // up to the view-dependent Fresnel weights (a few %).
+    std::ifstream in(fixture("textured.gltf"));
+    json doc = json::parse(in);
+    doc["extensionsUsed"] = {"KHR_lights_punctual"};
+    doc["extensions"] = {{"KHR_lights_punctual", {{"lights", {{{"type", "directional"}, {"intensity", 3}}}}}}};
+    doc["scenes"][0]["nodes"].push_back(2);
+    doc["nodes"].push_back({{"name", "sun"}, {"rotation", {-0.38268343, 0, 0, 0.92387953}},
+                            {"extensions", {{"KHR_lights_punctual", {{"light", 0}}}}}});
+    GltfTemp tmp;
+    for (const char *f : {"checker.png", "mr.png", "normal_up.png"}) {
+        std::ifstream png(fixture(f), std::ios::binary);
+        tmp.write(f, std::string(std::istreambuf_iterator<char>(png), {}));
+    }
+    auto mean_render = [&](bool mapped) {
+        json d = doc;
+        if (mapped) {
+            d["images"].push_back({{"uri", "normal_up.png"}});
+            d["textures"].push_back({{"source", 2}, {"sampler", 0}});
+            d["materials"][0]["normalTexture"] = {{"index", 2}};
+        }
+        auto s = load_scene(tmp.write(mapped ? "mapped.gltf" : "flat.gltf", d.dump()),
+                            {"camera.width=16", "camera.height=16", "integrator.type=direct"});
+        s->build();
+        RenderResult r = test::render_scene(*s, 4);
+        double sum = 0;
+        for (int y = 0; y < 16; ++y)
+            for (int x = 0; x < 16; ++x) sum += r.image.at(x, y, 0) + r.image.at(x, y, 1) + r.image.at(x, y, 2);
+        return sum;
+    };
+    const double ratio = mean_render(true) / mean_render(false);
+    EXPECT_NEAR(ratio, 0.9873 / 0.7071, 0.1);
+}

@@ -16,6 +16,8 @@
                         texture mr.png (uniform G = 255 roughness, B = 0 metallic), factors
                         1; the .gltf refers to the PNGs by URI, the .glb embeds them as
                         bufferView images
+  normal_up.png         a 1x1 tangent-space normal map tilted towards +y (test of the
+                        normal-map direction in tests/test_gltf.cpp)
 """
 import base64, json, os, struct, zlib
 
@@ -124,6 +126,9 @@ def png(w, h, rows):
 
 CHECKER = png(2, 2, [[(255, 0, 0), (0, 255, 0)], [(0, 0, 255), (188, 188, 188)]])
 MR = png(1, 1, [[(0, 255, 0)]])
+# A constant tangent-space normal tilted towards +y (glTF: green = +y = the bitangent,
+# towards decreasing v): (128, 220, 255) -> (0.004, 0.725, 1), normalised (0.003, 0.587, 0.810).
+NORMAL_UP = png(1, 1, [[(128, 220, 255)]])
 
 
 def textured(embed):
@@ -179,7 +184,7 @@ if __name__ == "__main__":
     write_glb("quad.glb", g, d)
     g, d = mixed()
     write_gltf("mixed.gltf", g, d)
-    for name, blob in (("checker.png", CHECKER), ("mr.png", MR)):
+    for name, blob in (("checker.png", CHECKER), ("mr.png", MR), ("normal_up.png", NORMAL_UP)):
         with open(os.path.join(HERE, name), "wb") as f:
             f.write(blob)
     g, d = textured(False)
