@@ -519,13 +519,17 @@ TEST(MaterialExtremes, FiniteAndNonNegative) {
         R"({"type":"blinnphong","exponent":1e6})",
         R"({"type":"blinnphong","exponent":1e6,"eta":1.5,"diffuse_reflectance":0.5})",
         R"({"type":"blinnphong","exponent":1e-3,"eta":1.5})",
+        R"({"type":"gltf_pbr","roughness":0})",
+        R"({"type":"gltf_pbr","roughness":0,"metallic":0,"base_color":0})",
+        R"({"type":"gltf_pbr","roughness":5,"metallic":-1,"base_color":2})",
     };
     for (const char *c : cfgs) expect_sane(*make_material(c), c);
 }
 
 TEST(MaterialExtremes, ReflectorsAreZeroBelowTheHorizon) {
     for (const char *c : {R"({"type":"diffuse"})", R"({"type":"conductor","alpha":0.3})", R"({"type":"plastic","alpha":0.2})",
-                          R"({"type":"blinnphong","exponent":30,"diffuse_reflectance":0.5})"}) {
+                          R"({"type":"blinnphong","exponent":30,"diffuse_reflectance":0.5})",
+                          R"({"type":"gltf_pbr","metallic":0.5,"roughness":0.4})"}) {
         auto m = make_material(c);
         Vec3 up = dir_deg(40, 10), down = dir_deg(130, 190);
         EXPECT_TRUE(m->eval(kCtx, up, down).is_black()) << c;
