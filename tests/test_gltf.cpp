@@ -482,7 +482,8 @@ TEST(Gltf, TextureFactorsEmbeddedImagesAndUnsupportedFeatures) {
     pbr["baseColorFactor"] = json::array({0.5, 1.0, 1.0, 1.0});
     pbr["metallicFactor"] = 0.25;
     pbr["roughnessFactor"] = 0.5;
-    pbr["baseColorTexture"]["extensions"] = {{"KHR_texture_transform", {{"scale", {2, 2}}}}};
+    pbr["baseColorTexture"]["extensions"] = {{"KHR_texture_transform", {{"scale", {2, 3}}, {"offset", {0.5, 0}}, {"rotation", 0.1}}},
+                                             {"EXT_unknown", json::object()}};
     doc["materials"][0]["normalTexture"] = {{"index", 0}, {"scale", 0.5}};
     doc["materials"][0]["alphaMode"] = "BLEND";
     GltfTemp tmp;
@@ -502,7 +503,10 @@ TEST(Gltf, TextureFactorsEmbeddedImagesAndUnsupportedFeatures) {
     EXPECT_EQ(b["base_color"]["op"], "product");
     EXPECT_NEAR(b["metallic"]["scale"].get<double>(), 0.25, 1e-6);
     EXPECT_NEAR(b["roughness"]["scale"].get<double>(), 0.5, 1e-6);
-    EXPECT_NE(err.find("material 'checker': baseColorTexture: extension KHR_texture_transform is not supported"), std::string::npos) << err;
+    EXPECT_EQ(b["base_color"]["terms"][0]["texture"]["tiling"], json::parse("[2.0, 3.0]"));  // KHR_texture_transform
+    EXPECT_EQ(b["base_color"]["terms"][0]["texture"]["offset"], json::parse("[0.5, 0.0]"));
+    EXPECT_NE(err.find("material 'checker': baseColorTexture: KHR_texture_transform rotation is not supported"), std::string::npos) << err;
+    EXPECT_NE(err.find("material 'checker': baseColorTexture: extension EXT_unknown is not supported"), std::string::npos) << err;
     EXPECT_NE(err.find("material 'checker': normalTexture scale 0.5 is ignored"), std::string::npos) << err;
     EXPECT_NE(err.find("material 'checker': alphaMode BLEND is not supported"), std::string::npos) << err;
     auto s = load_scene(p, {"camera.width=8", "camera.height=8"});

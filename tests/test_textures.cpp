@@ -134,6 +134,12 @@ TEST(TextureBitmap, NearestAndBilinearExact) {
     EXPECT_NEAR(nearest->mean().r, 16.5f, 1e-5f);
     auto scaled = make_texture({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"filter_type", "nearest"}, {"scale", 2}});
     EXPECT_FLOAT_EQ(scaled->eval(at(0.9f, 0.9f)).r, 66.f);
+    // offset after tiling: uv' = uv · 2 + (0.25, 0.5) -> (0.1, 0.1) looks up (0.45, 0.7), texel (1, 2).
+    auto moved = make_texture({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"filter_type", "nearest"}, {"tiling", 2},
+                               {"offset", {0.25, 0.5}}});
+    EXPECT_FLOAT_EQ(moved->eval(at(0.1f, 0.1f)).r, 21.f);
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"offset", {1}}}),
+              "scene.json: textures.tex.offset: expected [u, v], each finite with |value| <= 1e6");
 }
 
 TEST(TextureBitmap, WrapModes) {

@@ -567,6 +567,34 @@ std::string image_file(const std::string &path, const tinygltf::Model &model, in
     return out.string();
 }
 
+/// KHR_texture_transform → the bitmap's `tiling` (scale) and `offset`; rotation and a
+/// texCoord override are not supported (warning).
+void texture_transform(const std::string &path, const tinygltf::Value &v, const std::string &mat, const char *what, json &j) {
+    auto pair = [&](const char *key, double def, double out[2]) {
+        out[0] = out[1] = def;
+        if (!v.Has(key)) return;
+        const tinygltf::Value &a = v.Get(key);
+        if (a.IsArray() && a.ArrayLen() == 2 && a.Get(0).IsNumber() && a.Get(1).IsNumber()) {
+            out[0] = a.Get(0).GetNumberAsDouble(), out[1] = a.Get(1).GetNumberAsDouble();
+        } else {
+            warn(path, fmt::format("material '{}': {}: KHR_texture_transform.{} is not two numbers; ignored", mat, what, key));
+        }
+    };
+    double scale[2], offset[2];
+    pair("scale", 1.0, scale);
+    pair("offset", 0.0, offset);
+    const bool scale_ok = scale[0] > 0 && scale[0] <= 1e6 && scale[1] > 0 && scale[1] <= 1e6;
+    if (!scale_ok)
+        warn(path, fmt::format("material '{}': {}: KHR_texture_transform scale must be in (0, 1e6]; ignored", mat, what));
+    else if (scale[0] != 1.0 || scale[1] != 1.0)
+        j["tiling"] = json::array({scale[0], scale[1]});
+    if (offset[0] != 0.0 || offset[1] != 0.0) j["offset"] = json::array({offset[0], offset[1]});
+    if (v.Has("rotation") && v.Get("rotation").IsNumber() && v.Get("rotation").GetNumberAsDouble() != 0.0)
+        warn(path, fmt::format("material '{}': {}: KHR_texture_transform rotation is not supported; ignored", mat, what));
+    if (v.Has("texCoord"))
+        warn(path, fmt::format("material '{}': {}: KHR_texture_transform texCoord is not supported; ignored", mat, what));
+}
+
 /// A `bitmap` texture for a glTF textureInfo, or null (with a warning) when it cannot be read.
 json texture_json(const std::string &path, const tinygltf::Model &model, int tex, int texcoord,
                   const tinygltf::ExtensionMap &exts, const std::string &mat, const char *what, bool raw,
@@ -577,12 +605,17 @@ json texture_json(const std::string &path, const tinygltf::Model &model, int tex
         return json();
     }
     if (texcoord != 0) warn(path, fmt::format("material '{}': {} uses TEXCOORD_{}; meso reads TEXCOORD_0", mat, what, texcoord));
-    for (const auto &e : exts)
-        warn(path, fmt::format("material '{}': {}: extension {} is not supported; ignored", mat, what, e.first));
     const tinygltf::Texture &t = model.textures[size_t(tex)];
     std::string file = image_file(path, model, t.source, mat);
     if (file.empty()) return json();
     json j = {{"type", "bitmap"}, {"filename", file}, {"raw", raw}};
+    for (const auto &e : exts) {
+        if (e.first == "KHR_texture_transform" && e.second.IsObject()) {
+            texture_transform(path, e.second, mat, what, j);
+            continue;
+        }
+        warn(path, fmt::format("material '{}': {}: extension {} is not supported; ignored", mat, what, e.first));
+    }
     if (channel) j["channel"] = channel;
     if (t.sampler >= 0 && size_t(t.sampler) < model.samplers.size()) {
         int w = model.samplers[size_t(t.sampler)].wrapS;
