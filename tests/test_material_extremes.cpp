@@ -65,6 +65,11 @@ std::vector<Extreme> extreme_cases() {
             ++i;
         }
     }
+    int gi = 0;
+    for (const char *r : {"0", "1e-3", "0.1", "1"})
+        for (const char *m : {"0", "1"})
+            add(fmt::format("gltf_pbr_{}", gi++),
+                std::string(R"({"type":"gltf_pbr","base_color":1,"metallic":)") + m + ",\"roughness\":" + r + "}");
     add("conductor_fullndf", R"({"type":"conductor","alpha":1e-3,"sample_visible":false})");
     add("dielectric_eta_1", R"({"type":"dielectric","int_ior":1.0,"alpha":0.1})");
     add("dielectric_eta_below_1", R"({"type":"dielectric","int_ior":1.0,"ext_ior":1.5,"alpha":1e-3})");

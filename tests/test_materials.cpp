@@ -147,6 +147,11 @@ std::vector<Case> battery_cases() {
         d.lossless_tol = 2e-3;
     }
     add("plastic_beckmann_1", R"({"type":"plastic","distribution":"beckmann","alpha":1.0})");
+    // gltf_pbr: metal, dielectric, rough, smooth-ish (alpha = roughness^2 = 0.05)
+    add("gltf_pbr_metal", R"({"type":"gltf_pbr","base_color":[0.9,0.6,0.3],"metallic":1,"roughness":0.5})");
+    add("gltf_pbr_dielectric", R"({"type":"gltf_pbr","base_color":[0.8,0.4,0.1],"metallic":0,"roughness":0.5})");
+    add("gltf_pbr_rough_white", R"({"type":"gltf_pbr","base_color":1,"metallic":0,"roughness":1})");
+    add("gltf_pbr_smoothish_mix", R"({"type":"gltf_pbr","base_color":[0.5,0.7,0.9],"metallic":0.5,"roughness":0.2236068})");
     // blinnphong
     add("blinnphong_20_mix", R"({"type":"blinnphong","exponent":20,"specular_reflectance":0.7,"diffuse_reflectance":0.3})");
     add("blinnphong_200_fresnel", R"({"type":"blinnphong","exponent":200,"eta":1.5})").jacobian = true;
@@ -514,13 +519,17 @@ TEST(MaterialExtremes, FiniteAndNonNegative) {
         R"({"type":"blinnphong","exponent":1e6})",
         R"({"type":"blinnphong","exponent":1e6,"eta":1.5,"diffuse_reflectance":0.5})",
         R"({"type":"blinnphong","exponent":1e-3,"eta":1.5})",
+        R"({"type":"gltf_pbr","roughness":0})",
+        R"({"type":"gltf_pbr","roughness":0,"metallic":0,"base_color":0})",
+        R"({"type":"gltf_pbr","roughness":5,"metallic":-1,"base_color":2})",
     };
     for (const char *c : cfgs) expect_sane(*make_material(c), c);
 }
 
 TEST(MaterialExtremes, ReflectorsAreZeroBelowTheHorizon) {
     for (const char *c : {R"({"type":"diffuse"})", R"({"type":"conductor","alpha":0.3})", R"({"type":"plastic","alpha":0.2})",
-                          R"({"type":"blinnphong","exponent":30,"diffuse_reflectance":0.5})"}) {
+                          R"({"type":"blinnphong","exponent":30,"diffuse_reflectance":0.5})",
+                          R"({"type":"gltf_pbr","metallic":0.5,"roughness":0.4})"}) {
         auto m = make_material(c);
         Vec3 up = dir_deg(40, 10), down = dir_deg(130, 190);
         EXPECT_TRUE(m->eval(kCtx, up, down).is_black()) << c;

@@ -134,6 +134,12 @@ TEST(TextureBitmap, NearestAndBilinearExact) {
     EXPECT_NEAR(nearest->mean().r, 16.5f, 1e-5f);
     auto scaled = make_texture({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"filter_type", "nearest"}, {"scale", 2}});
     EXPECT_FLOAT_EQ(scaled->eval(at(0.9f, 0.9f)).r, 66.f);
+    // offset after tiling: uv' = uv · 2 + (0.25, 0.5) -> (0.1, 0.1) looks up (0.45, 0.7), texel (1, 2).
+    auto moved = make_texture({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"filter_type", "nearest"}, {"tiling", 2},
+                               {"offset", {0.25, 0.5}}});
+    EXPECT_FLOAT_EQ(moved->eval(at(0.1f, 0.1f)).r, 21.f);
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"offset", {1}}}),
+              "scene.json: textures.tex.offset: expected [u, v], each finite with |value| <= 1e6");
 }
 
 TEST(TextureBitmap, WrapModes) {
@@ -174,6 +180,23 @@ TEST(TextureBitmap, SrgbDecodeOf8BitPng) {
     EXPECT_NEAR(s2.g, srgb_decode(10 / 255.0), 1e-6);  // linear segment
     auto raw = make_texture({{"type", "bitmap"}, {"filename", "srgb.png"}, {"filter_type", "nearest"}, {"raw", true}});
     EXPECT_NEAR(raw->eval(at(0.25f, 0.5f)).r, 128 / 255.0, 1e-5);
+}
+
+TEST(TextureBitmap, ChannelSelectsOneChannelAsGrey) {
+    // glTF's metallicRoughness texture: B = metallic, G = roughness (raw, no sRGB decoding).
+    write_image("orm.png", 2, 1, 3, {10, 128, 255, 0, 64, 30});
+    auto g = make_texture({{"type", "bitmap"}, {"filename", "orm.png"}, {"filter_type", "nearest"}, {"raw", true}, {"channel", "g"}});
+    auto b = make_texture({{"type", "bitmap"}, {"filename", "orm.png"}, {"filter_type", "nearest"}, {"raw", true}, {"channel", "b"}});
+    Spectrum sg = g->eval(at(0.25f, 0.5f)), sb = b->eval(at(0.75f, 0.5f));
+    EXPECT_NEAR(sg.r, 128 / 255.0, 1e-5);
+    EXPECT_NEAR(sg.b, 128 / 255.0, 1e-5);  // grey
+    EXPECT_NEAR(g->eval_float(at(0.75f, 0.5f)), 64 / 255.0, 1e-5);
+    EXPECT_NEAR(sb.g, 30 / 255.0, 1e-5);
+    EXPECT_NEAR(b->mean().r, (255 + 30) / 2.0 / 255.0, 1e-5);
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "orm.png"}, {"channel", "a"}}),
+              "scene.json: textures.tex.channel: " + tmp_dir() + "/orm.png: the image has 3 channel(s), no alpha");
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "orm.png"}, {"channel", "x"}}),
+              "scene.json: textures.tex.channel: expected \"rgb\", \"r\", \"g\", \"b\" or \"a\", got \"x\"");
 }
 
 TEST(TextureBitmap, MissingAndMalformedFiles) {

@@ -9,8 +9,17 @@
                         triangles with normalised uint8 texcoords and an emissive
                         material; instanced twice: by a mirroring node (scale -1 in x)
                         and by its child (translated by +3 in y, so mirrored too)
+  textured.gltf / .glb  the quad at z = 0 seen from z = 10 (narrow fov), no lights, material
+                        "checker": gltf_pbr inputs from textures: baseColorTexture a 2x2
+                        sRGB checker (checker.png: top-left red, top-right green, bottom-left
+                        blue, bottom-right sRGB 188 grey = linear 0.503), metallicRoughness
+                        texture mr.png (uniform G = 255 roughness, B = 0 metallic), factors
+                        1; the .gltf refers to the PNGs by URI, the .glb embeds them as
+                        bufferView images
+  normal_up.png         a 1x1 tangent-space normal map tilted towards +y (test of the
+                        normal-map direction in tests/test_gltf.cpp)
 """
-import base64, json, os, struct
+import base64, json, os, struct, zlib
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -104,6 +113,51 @@ def mixed():
     return g, bytes(b.data)
 
 
+def png(w, h, rows):
+    """An 8-bit RGB PNG; rows: h lists of w (r, g, b)."""
+    raw = b"".join(b"\0" + bytes(c for px in row for c in px) for row in rows)
+
+    def chunk(tag, body):
+        return struct.pack(">I", len(body)) + tag + body + struct.pack(">I", zlib.crc32(tag + body) & 0xFFFFFFFF)
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)) +
+            chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+
+
+CHECKER = png(2, 2, [[(255, 0, 0), (0, 255, 0)], [(0, 0, 255), (188, 188, 188)]])
+MR = png(1, 1, [[(0, 255, 0)]])
+# A constant tangent-space normal tilted towards +y (glTF: green = +y = the bitangent,
+# towards decreasing v): (128, 220, 255) -> (0.004, 0.725, 1), normalised (0.003, 0.587, 0.810).
+NORMAL_UP = png(1, 1, [[(128, 220, 255)]])
+
+
+def textured(embed):
+    g, data = quad()
+    b = Buf()
+    b.data = bytearray(data)
+    b.views, b.accessors = g["bufferViews"], g["accessors"]
+    del g["extensionsUsed"], g["extensions"]
+    g["scenes"] = [{"nodes": [0, 1]}]
+    g["nodes"] = [{"name": "quad", "mesh": 0}, {"name": "camera", "camera": 0, "translation": [0, 0, 10]}]
+    g["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.2, "aspectRatio": 1.0, "znear": 0.1}}]
+    g["materials"] = [{"name": "checker", "pbrMetallicRoughness": {
+        "baseColorTexture": {"index": 0}, "metallicRoughnessTexture": {"index": 1}}}]
+    g["samplers"] = [{"magFilter": 9728, "minFilter": 9728, "wrapS": 33071, "wrapT": 33071}]
+    g["textures"] = [{"source": 0, "sampler": 0}, {"source": 1, "sampler": 0}]
+    if embed:
+        images = []
+        for blob in (CHECKER, MR):
+            while len(b.data) % 4:
+                b.data.append(0)
+            b.views.append({"buffer": 0, "byteOffset": len(b.data), "byteLength": len(blob)})
+            b.data += blob
+            images.append({"bufferView": len(b.views) - 1, "mimeType": "image/png"})
+        g["images"] = images
+    else:
+        g["images"] = [{"uri": "checker.png"}, {"uri": "mr.png"}]
+    return g, bytes(b.data)
+
+
 def write_gltf(name, g, data):
     g = dict(g)
     g["buffers"] = [{"byteLength": len(data),
@@ -130,3 +184,10 @@ if __name__ == "__main__":
     write_glb("quad.glb", g, d)
     g, d = mixed()
     write_gltf("mixed.gltf", g, d)
+    for name, blob in (("checker.png", CHECKER), ("mr.png", MR), ("normal_up.png", NORMAL_UP)):
+        with open(os.path.join(HERE, name), "wb") as f:
+            f.write(blob)
+    g, d = textured(False)
+    write_gltf("textured.gltf", g, d)
+    g, d = textured(True)
+    write_glb("textured.glb", g, d)

@@ -25,6 +25,11 @@
 //   raw          bool    false         true: no sRGB decoding of 8/16-bit data (normal maps,
 //                                      roughness, heights)
 //   scale        float   1             multiplier, finite
+//   offset       [u, v]  [0, 0]        added to uv after tiling: uv' = uv · tiling + offset (glTF
+//                                      KHR_texture_transform without rotation)
+//   channel      string  "rgb"         "rgb" | "r" | "g" | "b" | "a": one channel of the file as
+//                                      a grey texture (glTF's metallicRoughnessTexture: "b"
+//                                      metallic, "g" roughness); "rgb" keeps grey files grey
 #include <cmath>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -43,9 +48,9 @@ enum class Filter { Nearest, Bilinear, Trilinear, Ewa };
 
 class BitmapTexture final : public Texture {
 public:
-    BitmapTexture(MipMap mip, Filter filter, float max_anisotropy, float scale, Vec2 tiling, std::string name)
+    BitmapTexture(MipMap mip, Filter filter, float max_anisotropy, float scale, Vec2 tiling, Vec2 offset, std::string name)
         : m_mip(std::move(mip)), m_filter(filter), m_max_anisotropy(max_anisotropy), m_scale(scale), m_tiling(tiling),
-          m_name(std::move(name)) {
+          m_offset(offset), m_name(std::move(name)) {
         float m[3] = {0, 0, 0};
         m_mip.level_mean(0, m);
         m_mean = to_spectrum(m) * m_scale;
@@ -77,7 +82,7 @@ private:
         // The image repeats tiling.x times along u and tiling.y along v (matching a
         // displacement's tiling, so an albedo map stays aligned with the micro-facets).
         const float tu = m_tiling.x, tv = m_tiling.y;
-        const float u = ctx.uv.x * tu, w = ctx.uv.y * tv;
+        const float u = ctx.uv.x * tu + m_offset.x, w = ctx.uv.y * tv + m_offset.y;
         switch (m_filter) {
             case Filter::Nearest: m_mip.nearest(0, u, w, v); break;
             case Filter::Bilinear: m_mip.bilinear(0, u, w, v); break;
@@ -92,7 +97,7 @@ private:
     Filter m_filter;
     float m_max_anisotropy;
     float m_scale;
-    Vec2 m_tiling;
+    Vec2 m_tiling, m_offset;
     Spectrum m_mean;
     std::string m_name;
 };
@@ -116,14 +121,31 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         tiling = Vec2(t[0], t[1]);
     }
 
+    Vec2 offset(0.f, 0.f);
+    if (p.has("offset")) {
+        std::vector<float> o = p.get_floats("offset");
+        if (o.size() != 2 || !(std::abs(o[0]) <= 1e6f) || !(std::abs(o[1]) <= 1e6f))
+            p.fail("offset", "expected [u, v], each finite with |value| <= 1e6");
+        offset = Vec2(o[0], o[1]);
+    }
+    const int channel = p.get_enum<int>("channel", "rgb", {{"rgb", -1}, {"r", 0}, {"g", 1}, {"b", 2}, {"a", 3}});
+
     const Image img = read_image_param(p, "filename", file, raw);
-    // Keep 1 channel for grey (+alpha) images, RGB otherwise.
-    int nc = img.channels <= 2 ? 1 : 3;
+    // Keep 1 channel for grey (+alpha) images, RGB otherwise; `channel` picks one.
+    int nc = img.channels <= 2 ? 1 : 3, first = 0;
+    if (channel >= 0) {
+        nc = 1;
+        if (channel == 3) first = img.channels == 2 || img.channels == 4 ? img.channels - 1 : -1;
+        else first = img.channels >= 3 ? channel : (img.channels <= 2 ? 0 : -1);
+        if (first < 0)
+            p.fail("channel", fmt::format("{}: the image has {} channel(s), no {}", file, img.channels,
+                                          channel == 3 ? "alpha" : "such channel"));
+    }
     std::vector<float> data(size_t(img.width) * img.height * nc);
     long bad = 0;
     for (size_t i = 0; i < size_t(img.width) * img.height; ++i)
         for (int c = 0; c < nc; ++c) {
-            float x = img.data[i * img.channels + c];
+            float x = img.data[i * img.channels + first + c];
             if (!std::isfinite(x)) {
                 ++bad;
                 x = 0.f;
@@ -132,10 +154,10 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         }
     if (bad > 0) p.fail("filename", fmt::format("{}: {} texel value(s) are NaN or infinite", file, bad));
     MipMap mip(img.width, img.height, nc, std::move(data), wrap);
-    return std::make_shared<BitmapTexture>(std::move(mip), filter, max_anisotropy, scale, tiling, file);
+    return std::make_shared<BitmapTexture>(std::move(mip), filter, max_anisotropy, scale, tiling, offset, file);
 }
 
-MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, max_anisotropy, wrap_mode, raw, scale, tiling)",
+MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, max_anisotropy, wrap_mode, raw, scale, tiling, offset, channel)",
                       create_bitmap);
 MESO_REGISTER_TEXTURE("image", "alias of 'bitmap'", create_bitmap);
 
