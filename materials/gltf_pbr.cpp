@@ -128,17 +128,7 @@ public:
         if (!(wo.z > 0.f)) return false;
         Point p = point(ctx, wo.z);
         Vec3 wi;
-        if (u_lobe < p.p_spec) {
-            float pm;
-            Vec3 m = p.dist.sample(wo, u, &pm);
-            if (!(pm > 0.f) || !(dot(wo, m) > 0.f)) return false;
-            wi = normalize(reflect(wo, m));
-            out.flags = BSDF_GlossyReflection;
-        } else {
-            wi = square_to_cosine_hemisphere(u);
-            out.flags = BSDF_DiffuseReflection;
-        }
-        if (!(wi.z > 0.f)) return false;
+        if (!sample_glossy_or_diffuse(p.dist, wo, u_lobe, p.p_spec, u, wi, out.flags)) return false;
         out.wi = wi;
         out.eta = 1.f;
         out.pdf = mixture_pdf(p, wo, wi);

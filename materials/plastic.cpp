@@ -208,17 +208,7 @@ public:
             return out.pdf > 0.f;
         }
         Vec3 wi;
-        if (u_lobe < ps) {
-            float pm;
-            Vec3 m = m_dist->sample(wo, u, &pm);
-            if (!(pm > 0.f) || !(dot(wo, m) > 0.f)) return false;
-            wi = normalize(reflect(wo, m));
-            out.flags = BSDF_GlossyReflection;
-        } else {
-            wi = square_to_cosine_hemisphere(u);
-            out.flags = BSDF_DiffuseReflection;
-        }
-        if (!(wi.z > 0.f)) return false;
+        if (!sample_glossy_or_diffuse(*m_dist, wo, u_lobe, ps, u, wi, out.flags)) return false;
         out.wi = wi;
         out.pdf = pdf(ctx, wo, wi);
         if (!(out.pdf > 0.f)) return false;

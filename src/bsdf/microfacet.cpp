@@ -1,7 +1,9 @@
 #include "bsdf/microfacet.h"
 #include <cmath>
 #include <fmt/format.h>
+#include "bsdf/material.h"
 #include "core/properties.h"
+#include "sampling/warp.h"
 
 namespace meso {
 
@@ -354,6 +356,21 @@ double BlinnPhongLambdaTable::operator()(double cos_theta) const {
     double f = x - i;
     double y = (1.0 - f) * m_y[i] + f * m_y[i + 1];
     return std::max(y, 0.0) / a;
+}
+
+bool sample_glossy_or_diffuse(const MicrofacetDistribution &dist, const Vec3 &wo, float u_lobe, float p_glossy,
+                              Vec2 u, Vec3 &wi, uint32_t &flags) {
+    if (u_lobe < p_glossy) {
+        float pm;
+        Vec3 m = dist.sample(wo, u, &pm);
+        if (!(pm > 0.f) || !(dot(wo, m) > 0.f)) return false;
+        wi = normalize(reflect(wo, m));
+        flags = BSDF_GlossyReflection;
+    } else {
+        wi = square_to_cosine_hemisphere(u);
+        flags = BSDF_DiffuseReflection;
+    }
+    return wi.z > 0.f;
 }
 
 }  // namespace meso

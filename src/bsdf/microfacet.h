@@ -119,4 +119,11 @@ private:
     std::vector<double> m_y;
 };
 
+/// One direction of a glossy-over-diffuse mixture (plastic, gltf_pbr): with u_lobe < p_glossy the
+/// reflection of wo about a normal sampled from `dist` (flags BSDF_GlossyReflection), otherwise a
+/// cosine-weighted direction (BSDF_DiffuseReflection). False when no direction above the surface
+/// came out; the caller computes the mixture pdf and weight at the returned wi.
+bool sample_glossy_or_diffuse(const MicrofacetDistribution &dist, const Vec3 &wo, float u_lobe, float p_glossy,
+                              Vec2 u, Vec3 &wi, uint32_t &flags);
+
 }  // namespace meso
