@@ -120,9 +120,9 @@ void load_build_render(const fs::path &file) {
 }
 
 /// The three fixed scenes that load SCENE_DIR/map.EXT (written per extension on first use).
-/// A map whose header declares more than kMaxMapValues values is skipped: read_image allocates what the
-/// header says before reading (fuzz/crashes/exr_datawindow_16777023x64_allocates_4GB.exr), a cost
-/// for the range checks of issue 24 to bound, not something to find again on every run.
+/// A map whose header declares more than kMaxMapValues values is skipped: read_image refuses
+/// sizes no codec reaches from the file's size (fuzz/regressions/exr_datawindow_16777023x64_allocates_4GB.exr)
+/// but would still allocate a plausible large map, a cost, not a finding.
 void load_map_scenes(const char *ext) {
     const std::string map = std::string("map") + ext;
     try {

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include "app/commands.h"
 #include "core/error.h"
+#include "core/input_file.h"
 #include "image/false_colour.h"
 #include "image/image.h"
 
@@ -343,5 +344,37 @@ TEST(ImageRead, ExrAttributeClaimingMoreThanTheFileIsRefusedBeforeReading) {
         std::string msg = e.what();
         EXPECT_NE(msg.find(path), std::string::npos) << msg;
         EXPECT_NE(msg.find("corrupt EXR header: attribute 'capDate' claims 1953702419 bytes"), std::string::npos) << msg;
+    }
+}
+
+// Found by the scene-loader fuzzer (issue 24): a 1349-byte EXR whose dataWindow declares
+// 16777023 x 64 pixels made read_image allocate 4 GB before OpenEXR read a line. A decoded size
+// no codec can reach from the file's size is refused before the pixels are allocated.
+TEST(ImageRead, SmallFileDeclaringAHugeImageIsRefusedBeforeAllocating) {
+    const std::string path =
+        std::string(MESO_SOURCE_DIR) + "/fuzz/regressions/exr_datawindow_16777023x64_allocates_4GB.exr";
+    try {
+        meso::read_image(path);
+        FAIL() << "read_image accepted " << path;
+    } catch (const meso::MesoError &e) {
+        std::string msg = e.what();
+        EXPECT_NE(msg.find(path), std::string::npos) << msg;
+        EXPECT_NE(msg.find("16777023x64"), std::string::npos) << msg;
+        EXPECT_NE(msg.find("corrupt or truncated"), std::string::npos) << msg;
+    }
+}
+
+TEST(ImageRead, DecodedSizeLimits) {
+    using meso::decoded_size_problem;
+    // A constant 4096^2 RGBA float map compresses well but within what zlib reaches.
+    const uint64_t v = uint64_t(4096) * 4096 * 4;
+    EXPECT_EQ(decoded_size_problem(v, 4, v * 4 / 1000, v * 4), "");
+    EXPECT_NE(decoded_size_problem(v, 4, v * 4 / 5000, v * 4), "");
+    // Small images are never refused for their ratio (a 1-value file can be a few hundred bytes).
+    EXPECT_EQ(decoded_size_problem(1024, 4, 10, 4096), "");
+    EXPECT_NE(decoded_size_problem(meso::kMaxImageValues + 1, 1, ~uint64_t(0) >> 2, 4), "");
+    if (meso::physical_memory_bytes() > 0) {
+        EXPECT_NE(decoded_size_problem(1 << 20, 1, 1 << 20, meso::physical_memory_bytes() + 1).find("memory"),
+                  std::string::npos);
     }
 }

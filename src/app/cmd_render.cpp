@@ -18,6 +18,7 @@
 #include "app/commands.h"
 #include "core/distributed.h"
 #include "core/error.h"
+#include "core/input_file.h"
 #include "core/interrupt.h"
 #include "core/output_set.h"
 #include "core/sha1.h"

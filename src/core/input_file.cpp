@@ -1,4 +1,6 @@
 #include "core/input_file.h"
+#include <unistd.h>
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -58,6 +60,27 @@ std::string read_input_file(const std::string &path, uint64_t max_bytes, const c
     ss << f.rdbuf();
     if (f.bad()) throw MesoError(fmt::format("{}: cannot read the {} ({})", path, kind, std::strerror(errno)));
     return ss.str();
+}
+
+uint64_t physical_memory_bytes() {
+    const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+    return pages > 0 && page > 0 ? uint64_t(pages) * uint64_t(page) : 0;
+}
+
+std::string decoded_size_problem(uint64_t values, uint64_t stored_bytes_per_value, uint64_t file_bytes,
+                                 uint64_t decoded_bytes) {
+    if (values > kMaxImageValues) return fmt::format("{} values is more than the limit of 2^30", values);
+    const uint64_t stored = values * std::max<uint64_t>(stored_bytes_per_value, 1);
+    if (values > kFreeDecodedValues && stored / kMaxDecodeRatio > file_bytes)
+        return fmt::format("it declares {} of pixel data in a file of {}, a ratio of {:.0f}:1 that no image codec "
+                           "reaches (at most {}:1 is accepted): the file is corrupt or truncated",
+                           bytes_text(stored), bytes_text(file_bytes), double(stored) / double(std::max<uint64_t>(file_bytes, 1)),
+                           kMaxDecodeRatio);
+    const uint64_t have = physical_memory_bytes();
+    if (have > 0 && decoded_bytes > have)
+        return fmt::format("decoding it needs {} of memory, more than this machine's {}", bytes_text(decoded_bytes),
+                           bytes_text(have));
+    return {};
 }
 
 }  // namespace meso

@@ -189,9 +189,11 @@ Image read_image(const std::string &path, bool linearize_srgb) {
     if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth > 1)
         read_error(path, fmt::format("unsupported image size {}x{}x{} with {} channels", spec.width, spec.height,
                                      spec.depth, spec.nchannels));
-    if (uint64_t(spec.width) * uint64_t(spec.height) * uint64_t(spec.nchannels) > kMaxImageValues)
-        read_error(path, fmt::format("{}x{} with {} channels is more than the limit of 2^30 values", spec.width,
-                                     spec.height, spec.nchannels));
+    const uint64_t values = uint64_t(spec.width) * uint64_t(spec.height) * uint64_t(spec.nchannels);
+    if (std::string why = decoded_size_problem(values, uint64_t(spec.format.size()), fs::file_size(path, ec),
+                                               values * sizeof(float));
+        !why.empty())
+        read_error(path, fmt::format("{}x{} with {} channels: {}", spec.width, spec.height, spec.nchannels, why));
     Image img(spec.width, spec.height, spec.nchannels);
     if (!in->read_image(0, 0, 0, spec.nchannels, TypeDesc::FLOAT, img.data.data()))
         read_error(path, trimmed(in->geterror(), "read failed"));

@@ -27,11 +27,6 @@ double peak_rss_mb() {
 
 size_t film_bytes(int width, int height) { return size_t(width) * size_t(height) * (3 * sizeof(double) + 3 * sizeof(float)); }
 
-size_t physical_memory_bytes() {
-    const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
-    return pages > 0 && page > 0 ? size_t(pages) * size_t(page) : 0;
-}
-
 namespace {
 
 /// Accumulates samples per pixel in double precision. Each pixel is written by one

@@ -61,7 +61,5 @@ double peak_rss_mb();
 /// Bytes of the film of a w x h render (double sums + the float image), as `--plan` counts it.
 size_t film_bytes(int width, int height);
 
-/// Physical memory of the machine in bytes (sysconf).
-size_t physical_memory_bytes();
 
 }  // namespace meso
