@@ -23,24 +23,19 @@ public:
     explicit PerspectiveCamera(const Properties &p) {
         Vec3 origin = p.get_position("origin", Vec3(0, 0, 0));
         Vec3 target = p.get_position("target", Vec3(0, 0, -1));
-        Vec3 up = p.get_vec3("up", Vec3(0, 1, 0));
+        Vec3 up = p.get_direction("up", Vec3(0, 1, 0));
         try {
             m_to_world = Transform::look_at(origin, target, up);
         } catch (const std::exception &e) {
             p.fail(e.what());
         }
-        m_fov = p.get_float("fov", 40.f);
-        if (!(m_fov > 0.f && m_fov < 180.f)) p.fail("fov", "expected a field of view in degrees in (0, 180)");
+        m_fov = p.get_float("fov", 40.f, Range{0.0, 180.0, true, true});  // degrees
         std::string axis = p.get_string("fov_axis", "x");
         if (axis != "x" && axis != "y") p.fail("fov_axis", "expected \"x\" or \"y\"");
-        m_width = p.get_int("width", 640);
-        m_height = p.get_int("height", 480);
-        if (m_width < 1 || m_width > 65536) p.fail("width", "expected an integer in [1, 65536]");
-        if (m_height < 1 || m_height > 65536) p.fail("height", "expected an integer in [1, 65536]");
-        m_aperture = p.get_float("aperture_radius", 0.f);
-        if (m_aperture < 0.f) p.fail("aperture_radius", "expected a non-negative radius");
-        m_focus = p.get_float("focus_distance", length(target - origin));
-        if (!(m_focus > 0.f)) p.fail("focus_distance", "expected a positive distance");
+        m_width = p.get_int("width", 640, Range::closed(1, 65536));
+        m_height = p.get_int("height", 480, Range::closed(1, 65536));
+        m_aperture = p.get_float("aperture_radius", 0.f, Range::non_negative(kMaxSceneCoordinate));
+        m_focus = p.get_float("focus_distance", length(target - origin), Range::positive());
         // Image-plane half extents at z = 1.
         float t = std::tan(radians(m_fov) * 0.5f);
         float aspect = float(m_width) / float(m_height);

@@ -270,8 +270,7 @@ MESO_REGISTER_INTEGRATOR("path", "unidirectional path tracing, NEE + MIS, Russia
                          [](const Properties &p) -> std::shared_ptr<Integrator> {
                              int max_depth = p.get_int("max_depth", -1);
                              if (max_depth < -1 || max_depth == 0) p.fail("max_depth", "expected -1 (unbounded) or an integer >= 1");
-                             int rr = p.get_int("rr_depth", 5);
-                             if (rr < 1) p.fail("rr_depth", "expected an integer >= 1");
+                             const int rr = p.get_int("rr_depth", 5, Range::at_least(1));
                              return std::make_shared<PathIntegrator>(max_depth, rr, p.get_bool("hide_emitters", false),
                                                                      p.get_bool("differentials", true),
                                                                      p.get_bool("leadr_env_quadrature", false), "path");

@@ -325,14 +325,7 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
     }
     const std::string estimator = p.get_choice("estimator", "quadrature", {"quadrature", "stochastic"});
     c.stochastic = estimator == "stochastic";
-    if (p.has("tiling")) {
-        std::vector<float> t;
-        if (p.raw("tiling").is_number()) t.assign(2, p.get_float("tiling"));
-        else t = p.get_floats("tiling");
-        if (t.size() != 2 || !(t[0] > 0.f && t[0] <= 1e6f) || !(t[1] > 0.f && t[1] <= 1e6f))
-            p.fail("tiling", "expected a number or [repeats_u, repeats_v] in (0, 1e6]");
-        c.tu = t[0], c.tv = t[1];
-    }
+    if (p.has("tiling")) std::tie(c.tu, c.tv) = p.get_tiling();
     std::shared_ptr<const Material> base;
     const bool own_base = !p.has("base");
     if (own_base) {

@@ -318,17 +318,9 @@ void parse_grid(const Properties &p, Vmf::Config &c, TexelInputs &t) {
             p.fail("resolution", "expected [width, height], integers in [1, 16384]");
         t.gw = int(r[0]), t.gh = int(r[1]);
     }
-    if (p.has("tiling")) {
-        std::vector<float> tl = p.raw("tiling").is_number() ? std::vector<float>{p.get_float("tiling"), 0.f}
-                                                             : p.get_floats("tiling");
-        if (tl.size() == 2 && tl[1] == 0.f) tl[1] = tl[0];
-        if (tl.size() != 2 || !(tl[0] > 0.f && tl[0] <= 1e6f) || !(tl[1] > 0.f && tl[1] <= 1e6f))
-            p.fail("tiling", "expected a number or [repeats_u, repeats_v] in (0, 1e6]");
-        c.tu = tl[0], c.tv = tl[1];
-    }
+    if (p.has("tiling")) std::tie(c.tu, c.tv) = p.get_tiling();
     c.filter = parse_footprint_filter(p, "filter");
-    c.max_aniso = p.get_float("max_anisotropy", 8.f);
-    if (!(c.max_aniso >= 1.f) || !std::isfinite(c.max_aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
+    c.max_aniso = p.get_float("max_anisotropy", 8.f, Range::at_least(1.0));
 }
 
 /// The NDF lobe κ_N: a texture, or "auto" from a heightmap's average normals.

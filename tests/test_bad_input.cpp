@@ -115,6 +115,11 @@ void make_inputs(const fs::path &d) {
     write(d / "deg.json", scene(R"([{"type": "rectangle", "to_world": {"scale": [1e-8, 1e-8, 1]},
       "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1}}])"));
     write(d / "mat.json", R"({"type": "diffuse"})");
+    write(d / "spot.json", scene(R"([{"type": "rectangle"}])", R"([{"type": "spot", "position": [0, 0, 3], "target": [0, 0, 0]}])"));
+    write(d / "sun.json", scene(R"([{"type": "rectangle"}])", R"([{"type": "directional", "direction": [0, 0, -1]}])"));
+    write(d / "disp.json", scene(R"([{"type": "rectangle", "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1}}])"));
+    write(d / "tex.json", scene(R"([{"type": "rectangle", "material": {"type": "diffuse", "reflectance": {"type": "bitmap", "filename": "hugemap.exr"}}}])"));
+    fs::copy_file(fs::path(MESO_SOURCE_DIR) / "fuzz/regressions/exr_datawindow_16777023x64_allocates_4GB.exr", d / "hugemap.exr");
     for (const char *ext : {"obj", "dae"}) write(d / (std::string("tri.") + ext), "v 0 0 0\n");
     write(d / "draco.gltf", triangle_gltf(R"("extensionsUsed": ["KHR_draco_mesh_compression"],
                                              "extensionsRequired": ["KHR_draco_mesh_compression"])"));
@@ -140,8 +145,8 @@ std::vector<Case> cases() {
         {{"material", "albedo", "/dev/zero", "--wo", "0,0"}, 1, {"/dev/zero", "material file", "not a regular file"}},
         // Range-checked scene values, located by file and JSON path.
         {{"render", "s.json", "-D", "shapes[1].radius=1e39"}, 1, {"s.json: shapes[1].radius", "at most 3.4e38"}},
-        {{"render", "s.json", "-D", "shapes[1].radius=1e30"}, 1, {"s.json: shapes[1].radius", "expected a radius in (0, 1e+08]"}},
-        {{"render", "s.json", "-D", "shapes[1].radius=-1"}, 1, {"s.json: shapes[1].radius", "expected a radius in (0, 1e+08]"}},
+        {{"render", "s.json", "-D", "shapes[1].radius=1e30"}, 1, {"s.json: shapes[1].radius", "expected a number in (0, 1e+08]"}},
+        {{"render", "s.json", "-D", "shapes[1].radius=-1"}, 1, {"s.json: shapes[1].radius", "expected a number in (0, 1e+08]"}},
         {{"render", "s.json", "-D", "shapes[0].to_world.scale=1e300"}, 1, {"s.json: shapes[0].to_world.scale", "at most 3.4e38"}},
         {{"render", "s.json", "-D", "shapes[0].to_world.scale=1e30"}, 1, {"s.json: shapes[0].to_world.scale", "[1e-08, 1e+08]"}},
         {{"render", "s.json", "-D", "shapes[0].to_world.translate=[0,0,1e20]"}, 1, {"s.json: shapes[0].to_world.translate", "[-1e+08, 1e+08]"}},
@@ -150,6 +155,22 @@ std::vector<Case> cases() {
         {{"render", "s.json", "-D", "camera.origin=[1e39,0,0]"}, 1, {"s.json: camera.origin", "at most 3.4e38"}},
         {{"render", "s.json", "-D", "camera.origin=[1e20,0,0]"}, 1, {"s.json: camera.origin", "[-1e+08, 1e+08]"}},
         {{"render", "s.json", "-D", "camera.target=[0,0,1e9]"}, 1, {"s.json: camera.target", "[-1e+08, 1e+08]"}},
+        // Values read by lights, cameras, samplers and maps (issue 24: every scene value range-checked).
+        {{"render", "s.json", "-D", "lights[0].position=[0,0,1e20]"}, 1, {"s.json: lights[0].position", "[-1e+08, 1e+08]"}},
+        {{"render", "s.json", "-D", "lights[0].intensity=-1"}, 1, {"s.json: lights[0].intensity", "expected a number at least 0, got -1"}},
+        {{"render", "spot.json", "-D", "lights[0].target=[0,0,3]"}, 1, {"spot.json: lights[0].target", "must differ from 'position'"}},
+        {{"render", "spot.json", "-D", "lights[0].cutoff_angle=0"}, 1, {"spot.json: lights[0].cutoff_angle", "in (0, 180]"}},
+        {{"render", "spot.json", "-D", "lights[0].beam_width=90"}, 1, {"spot.json: lights[0].beam_width", "in [0, 20]"}},
+        {{"render", "sun.json", "-D", "lights[0].direction=[0,0,0]"}, 1, {"sun.json: lights[0].direction", "non-zero finite length"}},
+        {{"render", "sun.json", "-D", "lights[0].irradiance=[1,-2,1]"}, 1, {"sun.json: lights[0].irradiance", "got -2 at index 1"}},
+        {{"render", "s.json", "-D", "camera.up=[0,0,0]"}, 1, {"s.json: camera.up", "non-zero finite length"}},
+        {{"render", "s.json", "-D", "camera.fov=180"}, 1, {"s.json: camera.fov", "in (0, 180)"}},
+        {{"render", "s.json", "-D", "camera.width=0"}, 1, {"s.json: camera.width", "in [1, 65536]"}},
+        {{"render", "s.json", "-D", "sampler.seed=-5"}, 1, {"s.json: sampler.seed", "at least 0, got -5"}},
+        {{"render", "s.json", "-D", "sampler.sample_count=0"}, 1, {"s.json: sampler.sample_count", "at least 1, got 0"}},
+        {{"render", "disp.json", "-D", "shapes[0].displacement.scale=1e30"}, 1, {"disp.json: shapes[0].displacement.scale", "[-1e+08, 1e+08]"}},
+        {{"render", "disp.json", "-D", "shapes[0].displacement.tiling=[1,0]"}, 1, {"disp.json: shapes[0].displacement.tiling", "(0, 1e+06], got 0 at index 1"}},
+        {{"render", "tex.json"}, 1, {"tex.json: shapes[0].material.reflectance.filename", "hugemap.exr", "16777023x64", "corrupt or truncated"}},
         {{"render", "deg.json"}, 1, {"deg.json: shapes[0]", "the displaced mesh has no triangle with an area"}},
         // A bare mesh is a scene (framed, grey, lit), but this one has no face; formats meso does not read.
         {{"render", "tri.obj"}, 1, {"tri.obj: no faces"}},

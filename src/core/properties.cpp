@@ -155,6 +155,77 @@ Spectrum Properties::get_spectrum(const std::string &key, Spectrum def) const {
     return has(key) ? get_spectrum(key) : def;
 }
 
+std::string Range::text() const {
+    if (hi >= 3.4e38 && !hi_open) return fmt::format("{} {:g}", lo_open ? "greater than" : "at least", lo);
+    if (lo <= -3.4e38 && !lo_open) return fmt::format("{} {:g}", hi_open ? "less than" : "at most", hi);
+    return fmt::format("{}{:g}, {:g}{}", lo_open ? '(' : '[', lo, hi, hi_open ? ')' : ']');
+}
+
+namespace {
+std::string range_error(const Range &r, double v, int index) {
+    std::string where = index >= 0 ? fmt::format(" at index {}", index) : std::string();
+    if (r.hi >= 3.4e38 || r.lo <= -3.4e38) return fmt::format("expected a number {}, got {:g}{}", r.text(), v, where);
+    return fmt::format("expected a number in {}, got {:g}{}", r.text(), v, where);
+}
+}  // namespace
+
+float Properties::get_float(const std::string &key, Range r) const {
+    const float f = get_float(key);
+    if (!r.contains(f)) fail(key, range_error(r, f, -1));
+    return f;
+}
+float Properties::get_float(const std::string &key, float def, Range r) const { return has(key) ? get_float(key, r) : def; }
+
+int Properties::get_int(const std::string &key, Range r) const {
+    const int i = get_int(key);
+    if (!r.contains(i)) fail(key, range_error(r, i, -1));
+    return i;
+}
+int Properties::get_int(const std::string &key, int def, Range r) const { return has(key) ? get_int(key, r) : def; }
+
+Spectrum Properties::get_spectrum(const std::string &key, Range r) const {
+    const Spectrum s = get_spectrum(key);
+    const bool grey = raw(key).is_number();
+    for (int c = 0; c < 3; ++c)
+        if (!r.contains(s[c])) fail(key, range_error(r, s[c], grey ? -1 : c));
+    return s;
+}
+Spectrum Properties::get_spectrum(const std::string &key, Spectrum def, Range r) const {
+    return has(key) ? get_spectrum(key, r) : def;
+}
+
+std::vector<float> Properties::get_floats(const std::string &key, Range r) const {
+    std::vector<float> v = get_floats(key);
+    for (size_t i = 0; i < v.size(); ++i)
+        if (!r.contains(v[i])) fail(key, range_error(r, v[i], int(i)));
+    return v;
+}
+
+std::pair<float, float> Properties::get_pair(const std::string &key, Range r) const {
+    if (raw(key).is_number()) {
+        const float v = get_float(key, r);
+        return {v, v};
+    }
+    const json &v = raw(key);
+    if (!v.is_array() || v.size() != 2) fail(key, fmt::format("expected a number or a pair [a, b], got {}", json_type_name(v)));
+    const std::vector<float> f = get_floats(key, r);
+    return {f[0], f[1]};
+}
+
+std::pair<float, float> Properties::get_tiling(const std::string &key, float def) const {
+    return has(key) ? get_pair(key, Range::positive(1e6)) : std::pair<float, float>{def, def};
+}
+
+Vec3 Properties::get_direction(const std::string &key) const {
+    const Vec3 v = get_vec3(key);
+    const double len = std::sqrt(double(v.x) * v.x + double(v.y) * v.y + double(v.z) * v.z);
+    if (!(len > 1e-30) || !std::isfinite(len))
+        fail(key, fmt::format("expected a direction (a vector of non-zero finite length), got [{:g}, {:g}, {:g}]", v.x,
+                              v.y, v.z));
+    return Vec3(float(v.x / len), float(v.y / len), float(v.z / len));
+}
+Vec3 Properties::get_direction(const std::string &key, Vec3 def) const { return has(key) ? get_direction(key) : def; }
+
 std::string Properties::get_file(const std::string &key) const {
     std::string name = get_string(key);
     namespace fs = std::filesystem;

@@ -27,6 +27,23 @@ class Material;
 /// beyond it float precision leaves nothing to render (README.md, "Limits").
 inline constexpr float kMaxSceneCoordinate = 1e8f;
 
+/// The allowed values of a numeric parameter, for the ranged getters. The error names the
+/// file, the JSON path and the range: `expected a number in (0, 1e8], got -2`.
+struct Range {
+    double lo = -1e300, hi = 1e300;
+    bool lo_open = false, hi_open = false;
+    static Range positive(double hi = kMaxSceneCoordinate) { return {0, hi, true, false}; }   ///< (0, hi]
+    static Range non_negative(double hi = 3.4e38) { return {0, hi, false, false}; }           ///< [0, hi]
+    static Range closed(double lo, double hi) { return {lo, hi, false, false}; }              ///< [lo, hi]
+    static Range at_least(double lo) { return {lo, 3.4e38, false, false}; }                   ///< [lo, max]
+    static Range coordinate() { return closed(-kMaxSceneCoordinate, kMaxSceneCoordinate); }  ///< scene lengths
+    bool contains(double v) const {
+        return (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
+    }
+    /// "(0, 1e+08]", "[1, 64]", "at least 0", ...
+    std::string text() const;
+};
+
 /// Shared state of one scene load: the file name for messages, the directory that
 /// relative paths resolve against, named objects, and -D overrides already applied.
 struct LoadContext {
@@ -79,6 +96,21 @@ public:
     Vec3 get_position(const std::string &key, Vec3 def) const;
     Spectrum get_spectrum(const std::string &key) const;
     Spectrum get_spectrum(const std::string &key, Spectrum def) const;
+    /// Ranged reads: the value (every component of a spectrum or vector) must lie in `r`.
+    float get_float(const std::string &key, Range r) const;
+    float get_float(const std::string &key, float def, Range r) const;
+    int get_int(const std::string &key, Range r) const;
+    int get_int(const std::string &key, int def, Range r) const;
+    Spectrum get_spectrum(const std::string &key, Range r) const;
+    Spectrum get_spectrum(const std::string &key, Spectrum def, Range r) const;
+    std::vector<float> get_floats(const std::string &key, Range r) const;
+    /// A number (used for both) or a pair [a, b], each in `r`.
+    std::pair<float, float> get_pair(const std::string &key, Range r) const;
+    /// Texture repeat counts: "tiling": n or [n_u, n_v], each in (0, 1e6]; `def` when absent.
+    std::pair<float, float> get_tiling(const std::string &key = "tiling", float def = 1.f) const;
+    /// A direction: finite, not (near) zero length; returned normalized.
+    Vec3 get_direction(const std::string &key) const;
+    Vec3 get_direction(const std::string &key, Vec3 def) const;
     std::vector<float> get_floats(const std::string &key) const;
     /// Enumerated string parameter: the value of `key` (`def` when absent; no default: required)
     /// must be one of the names in `choices`, and gives the value paired with it. The error

@@ -80,22 +80,9 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
         }
     }
 
-    const float scale = p.get_float("scale", 1.f), offset = p.get_float("offset", 0.f);
-    if (!std::isfinite(scale)) p.fail("scale", "expected a finite number (world units per map unit)");
-    if (!std::isfinite(offset)) p.fail("offset", "expected a finite number (world units)");
-    d.scale = scale, d.offset = offset;
-    if (p.has("tiling")) {
-        const nlohmann::json &t = p.raw("tiling");
-        if (t.is_number()) {
-            d.tiling_u = d.tiling_v = p.get_float("tiling");
-        } else {
-            std::vector<float> tv = p.get_floats("tiling");
-            if (tv.size() != 2) p.fail("tiling", "expected a number or [repeats_u, repeats_v]");
-            d.tiling_u = tv[0], d.tiling_v = tv[1];
-        }
-        for (float v : {d.tiling_u, d.tiling_v})
-            if (!(v > 0.f) || !(v <= 1e6f)) p.fail("tiling", fmt::format("expected repeat counts in (0, 1e6], got {}", v));
-    }
+    d.scale = p.get_float("scale", 1.f, Range::coordinate());  // world units per map unit
+    d.offset = p.get_float("offset", 0.f, Range::coordinate());
+    std::tie(d.tiling_u, d.tiling_v) = p.get_tiling("tiling", d.tiling_u);
     d.mode = p.get_enum<DisplacementMode>("mode", "shell",
                                           {{"shell", DisplacementMode::Shell}, {"tessellate", DisplacementMode::Tessellate}});
     if (d.mode == DisplacementMode::Shell) {
@@ -112,7 +99,7 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
             d.field = std::make_shared<Heightfield>(map, 1.f, 0.f);
             d.field_untransferred = true;
         } else {
-            d.field = std::make_shared<Heightfield>(map, scale, offset);
+            d.field = std::make_shared<Heightfield>(map, d.scale, d.offset);
         }
     } catch (const MesoError &e) {
         p.fail("map", e.what());

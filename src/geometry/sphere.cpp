@@ -80,9 +80,7 @@ private:
 };
 
 MESO_REGISTER_SHAPE("sphere", "analytic sphere (center, radius, flip_normals; with displacement: a uv sphere of rings x segments)", [](const Properties &p) -> std::shared_ptr<Shape> {
-    float r = p.get_float("radius", 1.f);
-    if (!(r > 0.f && r <= kMaxSceneCoordinate))
-        p.fail("radius", fmt::format("expected a radius in (0, {:g}], got {:g}", kMaxSceneCoordinate, r));
+    const float r = p.get_float("radius", 1.f, Range::positive());
     if (p.has("displacement")) {
         // Displacement needs a mesh with uvs: the sphere becomes a uv sphere (same uv layout).
         int rings = p.get_int("rings", 64), seg = p.get_int("segments", 128);

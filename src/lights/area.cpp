@@ -216,8 +216,7 @@ private:
 
 MESO_REGISTER_LIGHT("area", "diffuse area emitter on a shape (radiance, two_sided, sampling)",
                     [](const Properties &p) -> std::shared_ptr<Light> {
-                        Spectrum L = p.get_spectrum("radiance", Spectrum(1.f));
-                        if (L.r < 0 || L.g < 0 || L.b < 0) p.fail("radiance", "must be non-negative");
+                        Spectrum L = p.get_spectrum("radiance", Spectrum(1.f), Range::non_negative());
                         bool two_sided = p.get_bool("two_sided", false);
                         const bool solid_angle =
                             p.get_enum<bool>("sampling", "solid_angle", {{"solid_angle", true}, {"area", false}});

@@ -43,8 +43,7 @@ private:
 };
 
 MESO_REGISTER_LIGHT("constant", "uniform environment light (radiance)", [](const Properties &p) -> std::shared_ptr<Light> {
-    Spectrum L = p.get_spectrum("radiance", Spectrum(1.f));
-    if (L.r < 0 || L.g < 0 || L.b < 0) p.fail("radiance", "must be non-negative");
+    Spectrum L = p.get_spectrum("radiance", Spectrum(1.f), Range::non_negative());
     return std::make_shared<ConstantEnvLight>(L);
 });
 

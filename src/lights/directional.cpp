@@ -45,10 +45,8 @@ private:
 
 MESO_REGISTER_LIGHT("directional", "parallel light (direction of travel, irradiance W/m^2)",
                     [](const Properties &p) -> std::shared_ptr<Light> {
-                        Vec3 d = p.get_vec3("direction", Vec3(0, 0, 1));
-                        if (!(length_squared(d) > 0.f)) p.fail("direction", "must be a non-zero vector");
-                        Spectrum E = p.get_spectrum("irradiance", Spectrum(1.f));
-                        if (E.r < 0 || E.g < 0 || E.b < 0) p.fail("irradiance", "must be non-negative");
+                        Vec3 d = p.get_direction("direction", Vec3(0, 0, 1));
+                        Spectrum E = p.get_spectrum("irradiance", Spectrum(1.f), Range::non_negative());
                         return std::make_shared<DirectionalLight>(d, E);
                     });
 

@@ -174,8 +174,7 @@ std::string EnvMapLight::to_string() const {
 MESO_REGISTER_LIGHT("envmap", "importance-sampled lat-long environment map (filename, scale, to_world)",
                     [](const Properties &p) -> std::shared_ptr<Light> {
                         std::string file = p.get_file("filename");
-                        float scale = p.get_float("scale", 1.f);
-                        if (!(scale >= 0.f)) p.fail("scale", "must be non-negative");
+                        float scale = p.get_float("scale", 1.f, Range::non_negative());
                         Transform to_world = parse_transform(p);
                         Image img;
                         try {

@@ -44,9 +44,8 @@ private:
 
 MESO_REGISTER_LIGHT("point", "isotropic point light (position, intensity W/sr)",
                     [](const Properties &p) -> std::shared_ptr<Light> {
-                        Spectrum I = p.get_spectrum("intensity", Spectrum(1.f));
-                        if (I.r < 0 || I.g < 0 || I.b < 0) p.fail("intensity", "must be non-negative");
-                        return std::make_shared<PointLight>(p.get_vec3("position", Vec3(0, 0, 0)), I);
+                        Spectrum I = p.get_spectrum("intensity", Spectrum(1.f), Range::non_negative());
+                        return std::make_shared<PointLight>(p.get_position("position", Vec3(0, 0, 0)), I);
                     });
 
 }  // namespace

@@ -76,24 +76,19 @@ private:
 
 MESO_REGISTER_LIGHT("spot", "spot light (position, direction/target, intensity, cutoff_angle, beam_width)",
                     [](const Properties &p) -> std::shared_ptr<Light> {
-                        Vec3 pos = p.get_vec3("position", Vec3(0, 0, 0));
+                        Vec3 pos = p.get_position("position", Vec3(0, 0, 0));
                         Vec3 dir(0, 0, 1);
                         if (p.has("direction") && p.has("target"))
                             p.fail("target", "give either 'direction' or 'target', not both");
                         if (p.has("direction")) {
-                            dir = p.get_vec3("direction");
-                            if (!(length_squared(dir) > 0.f)) p.fail("direction", "must be a non-zero vector");
+                            dir = p.get_direction("direction");
                         } else if (p.has("target")) {
-                            dir = p.get_vec3("target") - pos;
+                            dir = p.get_position("target") - pos;
                             if (!(length_squared(dir) > 0.f)) p.fail("target", "must differ from 'position'");
                         }
-                        Spectrum I = p.get_spectrum("intensity", Spectrum(1.f));
-                        if (I.r < 0 || I.g < 0 || I.b < 0) p.fail("intensity", "must be non-negative");
-                        float cutoff = p.get_float("cutoff_angle", 20.f);
-                        if (!(cutoff > 0.f && cutoff <= 180.f)) p.fail("cutoff_angle", "must be in (0, 180] degrees");
-                        float beam = p.get_float("beam_width", cutoff * 0.75f);
-                        if (!(beam >= 0.f && beam <= cutoff))
-                            p.fail("beam_width", fmt::format("must be in [0, cutoff_angle = {}] degrees", cutoff));
+                        Spectrum I = p.get_spectrum("intensity", Spectrum(1.f), Range::non_negative());
+                        float cutoff = p.get_float("cutoff_angle", 20.f, Range::positive(180.0));
+                        float beam = p.get_float("beam_width", cutoff * 0.75f, Range::closed(0.0, cutoff));
                         return std::make_shared<SpotLight>(pos, dir, I, cutoff, beam);
                     });
 

@@ -44,7 +44,7 @@ private:
 
 MESO_REGISTER_SAMPLER("independent", "uniform pseudo-random samples (PCG32 per pixel sample); parameter: seed",
                       [](const Properties &p) -> std::shared_ptr<Sampler> {
-                          return std::make_shared<IndependentSampler>(uint64_t(int64_t(p.get_int("seed", 0))));
+                          return std::make_shared<IndependentSampler>(uint64_t(p.get_int("seed", 0, Range::non_negative())));
                       });
 
 }  // namespace

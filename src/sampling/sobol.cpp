@@ -75,7 +75,7 @@ MESO_REGISTER_SAMPLER("sobol",
                       "Owen-scrambled, shuffled 2D Sobol (0,2)-sequence per dimension pair (Burley 2020); "
                       "parameter: seed",
                       [](const Properties &p) -> std::shared_ptr<Sampler> {
-                          return std::make_shared<SobolSampler>(uint64_t(int64_t(p.get_int("seed", 0))));
+                          return std::make_shared<SobolSampler>(uint64_t(p.get_int("seed", 0, Range::non_negative())));
                       });
 
 }  // namespace

@@ -184,8 +184,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, siz
     // Sampler (default: independent, 16 spp). The loader reads sample_count: Scene::spp.
     static const json default_sampler = {{"type", "independent"}};
     Properties sp = root.has("sampler") ? root.child("sampler") : Properties(default_sampler, "sampler", ctx);
-    int spp = sp.get_int("sample_count", 16);
-    if (spp < 1) sp.fail("sample_count", fmt::format("expected a positive integer, got {}", spp));
+    const int spp = sp.get_int("sample_count", 16, Range::at_least(1));
     scene->spp = spp;
     scene->sampler = create_sampler(sp);
 

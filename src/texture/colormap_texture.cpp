@@ -503,17 +503,12 @@ std::unique_ptr<Driver> make_image(const Properties &p) {
     const WrapMode wrap = parse_wrap_mode(p, "wrap_mode");
     Vec2 tiling(1.f, 1.f);
     if (p.has("tiling")) {
-        std::vector<float> t =
-            p.raw("tiling").is_number() ? std::vector<float>(2, p.get_float("tiling")) : p.get_floats("tiling");
-        if (t.size() != 2 || !(t[0] > 0.f && t[0] <= 1e6f) || !(t[1] > 0.f && t[1] <= 1e6f))
-            p.fail("tiling", "expected a repeat count or [repeats_u, repeats_v], each in (0, 1e6]");
-        tiling = Vec2(t[0], t[1]);
+        const auto [t0, t1] = p.get_tiling();
+        tiling = Vec2(t0, t1);
     }
     const FootprintFilter filter = p.get_enum<FootprintFilter>(
         "footprint", "trilinear", {{"trilinear", FootprintFilter::Trilinear}, {"ewa", FootprintFilter::Ewa}});
-    const float max_anisotropy = p.get_float("max_anisotropy", 8.f);
-    if (!(max_anisotropy >= 1.f && std::isfinite(max_anisotropy)))
-        p.fail("max_anisotropy", "expected a finite number >= 1");
+    const float max_anisotropy = p.get_float("max_anisotropy", 8.f, Range::at_least(1.0));
 
     const Image img = read_image_param(p, "filename", file, raw);
     // Grey: channel 0 of 1- and 2-channel (grey + alpha) images, the RGB average otherwise.

@@ -107,18 +107,14 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
     const Filter filter = p.get_enum<Filter>(
         "filter_type", "trilinear",
         {{"nearest", Filter::Nearest}, {"bilinear", Filter::Bilinear}, {"trilinear", Filter::Trilinear}, {"ewa", Filter::Ewa}});
-    float max_anisotropy = p.get_float("max_anisotropy", 8.f);
-    if (!(max_anisotropy >= 1.f && std::isfinite(max_anisotropy)))
-        p.fail("max_anisotropy", "expected a finite number >= 1");
+    float max_anisotropy = p.get_float("max_anisotropy", 8.f, Range::at_least(1.0));
     const WrapMode wrap = parse_wrap_mode(p, "wrap_mode");
     bool raw = p.get_bool("raw", false);
     float scale = p.get_float("scale", 1.f);
     Vec2 tiling(1.f, 1.f);
     if (p.has("tiling")) {
-        std::vector<float> t = p.raw("tiling").is_number() ? std::vector<float>(2, p.get_float("tiling")) : p.get_floats("tiling");
-        if (t.size() != 2 || !(t[0] > 0.f && t[0] <= 1e6f) || !(t[1] > 0.f && t[1] <= 1e6f))
-            p.fail("tiling", "expected a repeat count or [repeats_u, repeats_v], each in (0, 1e6]");
-        tiling = Vec2(t[0], t[1]);
+        const auto [t0, t1] = p.get_tiling();
+        tiling = Vec2(t0, t1);
     }
 
     Vec2 offset(0.f, 0.f);

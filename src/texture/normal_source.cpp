@@ -93,24 +93,11 @@ NormalSource NormalSource::parse(const Properties &p, const std::string &constan
         if (p.has(constant_key))
             p.fail(constant_key, fmt::format("give either a map or a constant \"{}\", not both", constant_key));
         const Filter filter = parse_footprint_filter(p, "filter");
-        const float aniso = p.get_float("max_anisotropy", 8.f);
-        if (!(aniso >= 1.f) || !std::isfinite(aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
+        const float aniso = p.get_float("max_anisotropy", 8.f, Range::at_least(1.0));
         if (has_map) {
             if (p.has("uv_length")) p.fail("uv_length", "only meaningful with a \"heightmap\"");
             const std::string file = p.get_file("normals");
-            float tu = 1.f, tv = 1.f;
-            if (p.has("tiling")) {
-                if (p.raw("tiling").is_number()) {
-                    tu = tv = p.get_float("tiling");
-                } else {
-                    std::vector<float> t = p.get_floats("tiling");
-                    if (t.size() != 2) p.fail("tiling", "expected a number or [repeats_u, repeats_v]");
-                    tu = t[0], tv = t[1];
-                }
-                for (float v : {tu, tv})
-                    if (!(v > 0.f) || !(v <= 1e6f))
-                        p.fail("tiling", fmt::format("expected repeat counts in (0, 1e6], got {}", v));
-            }
+            const auto [tu, tv] = p.get_tiling();
             std::shared_ptr<MipMap> mip;
             try {
                 Image img = read_image(file, /*linearize_srgb=*/false);
@@ -124,10 +111,8 @@ NormalSource NormalSource::parse(const Properties &p, const std::string &constan
         Displacement d = parse_displacement(p.child("heightmap"), 0);
         double lu = 1.0, lv = 1.0;
         if (p.has("uv_length")) {
-            std::vector<float> l = p.get_floats("uv_length");
-            if (l.size() != 2 || !(l[0] > 0.f) || !(l[1] > 0.f) || !std::isfinite(l[0]) || !std::isfinite(l[1]))
-                p.fail("uv_length", "expected [Lu, Lv], positive and finite (world length of one unit of u, v)");
-            lu = l[0], lv = l[1];
+            const auto [a, b] = p.get_pair("uv_length", Range::positive());  // world length of one unit of u, v
+            lu = a, lv = b;
         }
         auto mip = std::make_shared<MipMap>(bake_heightfield(*d.field, d.tiling_u, d.tiling_v, lu, lv));
         return NormalSource(mip, Space::UV, d.tiling_u, d.tiling_v, filter, aniso,

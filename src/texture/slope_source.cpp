@@ -100,8 +100,7 @@ SlopeSource SlopeSource::parse(const Properties &p) {
         // "gaussian": the pyramids of the untransformed f (map units); g is applied per footprint.
         Displacement d = parse_displacement(hp, 0, /*apply_transfer=*/!gaussian);
         const Filter filter = parse_footprint_filter(p, "filter");
-        const float aniso = p.get_float("max_anisotropy", 8.f);
-        if (!(aniso >= 1.f) || !std::isfinite(aniso)) p.fail("max_anisotropy", "expected a finite number >= 1");
+        const float aniso = p.get_float("max_anisotropy", 8.f, Range::at_least(1.0));
         SlopeSource src(*d.field, d.tiling_u, d.tiling_v, filter, aniso, d.source);
         if (gaussian) src.set_height_transfer(d.transfer, d.scale, d.offset);
         return src;
