@@ -326,6 +326,7 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
     const std::string estimator = p.get_choice("estimator", "quadrature", {"quadrature", "stochastic"});
     c.stochastic = estimator == "stochastic";
     if (p.has("tiling")) std::tie(c.tu, c.tv) = p.get_tiling();
+    if (c.model->wrap != WrapMode::Repeat) c.tu *= 0.5f, c.tv *= 0.5f;  // the model spans the map's 2 x 2 extension
     std::shared_ptr<const Material> base;
     const bool own_base = !p.has("base");
     if (own_base) {

@@ -219,6 +219,9 @@ TEST(Displacement, BadInputErrors) {
     expect_error(R"({"map": {"generator": "nope"}})", "nope");
     expect_error(R"({"map": {"generator": "fbm", "size": 16}, "scal": 1})", "scal");
     expect_error(R"({"map": 3})", "expected a file name or a generator object");
+    expect_error(R"({"map": {"generator": "fbm", "size": 16}, "wrap": "wrap"})", "expected \"repeat\", \"clamp\" or \"mirror\"");
+    expect_error(R"({"map": {"generator": "fbm", "size": 16}, "wrap": "clamp", "tiling": 2})",
+                 "shapes[0].displacement.wrap: with \"wrap\": \"clamp\" the surface's uv x tiling must stay within");
     expect_error(R"({"map": {"generator": "fbm", "size": 16}})", "cannot be an area emitter",
                  R"("emitter": {"type": "area", "radiance": 1},)");
 }
@@ -317,4 +320,80 @@ TEST(Displacement, CommandLineLimitAndRecord) {
     ASSERT_TRUE(rec.contains("geometry_bytes"));
     EXPECT_GT(rec["geometry_bytes"].get<size_t>(), size_t(64 * 64 * 4));  // at least the heights
     EXPECT_NE(rec["shapes"][0]["shape"].get<std::string>().find("shell map"), std::string::npos);
+}
+
+// Issue 23, displacement edge modes: a map with a mean-slope ramp does not tile, so under
+// "repeat" its last cell climbs back down to the first vertex (a cliff wall along the far
+// edges). In every mode the shell-mapped and tessellated surfaces are the same bilinear
+// surface, so their renders agree within the noise, with the camera looking at the far edges
+// (u = 1 and v = 1) where the modes differ.
+TEST(Displacement, ShellMatchesTessellationAtTheEdgesInEveryWrapMode) {
+    for (const char *wrap : {"repeat", "clamp", "mirror"}) {
+        std::string scene = fmt::format(R"({{
+          "camera": {{"type": "perspective", "origin": [2.2, 1.4, 2.2], "target": [0.6, 0, 0.6], "up": [0, 1, 0],
+                     "fov": 40, "width": 64, "height": 64}},
+          "integrator": {{"type": "path", "max_depth": 4}},
+          "shapes": [{{"type": "rectangle", "to_world": {{"rotate": {{"axis": [1, 0, 0], "angle": -90}}}},
+                      "material": {{"type": "plastic", "diffuse_reflectance": [0.6, 0.5, 0.4], "alpha": 0.2}},
+                      "displacement": {{"map": {{"generator": "gaussian", "size": 32, "correlation": 0.1, "sxx": 0.03,
+                                                 "syy": 0.03, "mx": 0.5, "my": 0.3}},
+                                       "scale": 1, "wrap": "{}", @MODE@}}}},
+                     {{"type": "rectangle", "material": {{"type": "diffuse", "reflectance": 0.3}},
+                      "to_world": {{"rotate": {{"axis": [1, 0, 0], "angle": -90}}, "scale": 4, "translate": [0, -0.3, 0]}}}}],
+          "lights": [{{"type": "directional", "direction": [-0.5, -1, -0.2], "irradiance": 3}},
+                     {{"type": "constant", "radiance": 0.3}}]
+        }})",
+                                        wrap);
+        CrossCheck r = cross_check(std::string("disp_x_edge_") + wrap, scene, 16, 8);
+        EXPECT_LT(r.cross_relmse, 1.15 * r.noise_relmse) << wrap << ": noise " << r.noise_relmse;
+    }
+}
+
+// The periodic extension behind "wrap" (geometry/heightmap.h): mirror reflects with period 2W,
+// clamp repeats the edge vertex up to W + W/2 and vertex 0 beyond (the negative side).
+TEST(Displacement, PeriodicExtensionOfClampAndMirror) {
+    HeightMap m(4, 3);
+    for (int j = 0; j < 3; ++j)
+        for (int i = 0; i < 4; ++i) m.at(i, j) = float(10 * j + i);
+    const HeightMap r = periodic_extension(m, WrapMode::Repeat);
+    EXPECT_EQ(r.width, 4);
+    EXPECT_EQ(r.h, m.h);
+    const HeightMap mi = periodic_extension(m, WrapMode::Mirror), cl = periodic_extension(m, WrapMode::Clamp);
+    ASSERT_EQ(mi.width, 8);
+    ASSERT_EQ(mi.height, 6);
+    const int mirror_i[8] = {0, 1, 2, 3, 3, 2, 1, 0}, mirror_j[6] = {0, 1, 2, 2, 1, 0};
+    const int clamp_i[8] = {0, 1, 2, 3, 3, 3, 0, 0}, clamp_j[6] = {0, 1, 2, 2, 0, 0};  // W + W/2 = 6, H + H/2 = 4
+    for (int j = 0; j < 6; ++j)
+        for (int i = 0; i < 8; ++i) {
+            EXPECT_EQ(mi.at(i, j), m.at(mirror_i[i], mirror_j[j])) << i << "," << j;
+            EXPECT_EQ(cl.at(i, j), m.at(clamp_i[i], clamp_j[j])) << i << "," << j;
+        }
+}
+
+// Heights along the far edge of a ramp map (uv -> height through the displacement): repeat
+// falls back to vertex 0 in the last cell, clamp stays at vertex W-1, mirror is symmetric about
+// u = 1; inside the map all three agree.
+TEST(Displacement, WrapModesAtTheFarEdge) {
+    auto disp = [](const char *wrap) {
+        const std::string json = fmt::format(R"({{"camera": {{"type": "perspective", "width": 8, "height": 8}},
+            "shapes": [{{"type": "rectangle", "displacement": {{"map": {{"generator": "gaussian", "size": 16,
+              "correlation": 0.1, "sxx": 0, "syy": 0, "mx": 1, "my": 0}}, "wrap": "{}"}}}}]}})",
+                                             wrap);
+        auto scene = load_scene(write_temp(std::string("disp_wrap_") + wrap + ".json", json), {});
+        auto shell = std::dynamic_pointer_cast<ShellShape>(scene->shapes.at(0));
+        EXPECT_TRUE(shell);
+        return shell->displacement();
+    };
+    const Displacement rep = disp("repeat"), cla = disp("clamp"), mir = disp("mirror");
+    EXPECT_EQ(cla.field->width(), 32);
+    const float last = rep.height_at(Vec2(15.f / 16, 0.5f)), first = rep.height_at(Vec2(0.f, 0.5f));
+    EXPECT_GT(last - first, 0.8f);  // the ramp: mx = 1 over the tile
+    for (float u : {0.1f, 0.5f, 15.f / 16})
+        for (const Displacement *d : {&cla, &mir}) EXPECT_NEAR(d->height_at(Vec2(u, 0.5f)), rep.height_at(Vec2(u, 0.5f)), 1e-5f) << u;
+    EXPECT_NEAR(rep.height_at(Vec2(1.f, 0.5f)), first, 1e-5f);    // repeat: back to vertex 0 (the cliff)
+    EXPECT_NEAR(cla.height_at(Vec2(1.f, 0.5f)), last, 1e-5f);     // clamp: vertex W-1 extends
+    EXPECT_NEAR(cla.height_at(Vec2(1.4f, 0.5f)), last, 1e-5f);
+    EXPECT_NEAR(cla.height_at(Vec2(-0.3f, 0.5f)), first, 1e-5f);
+    const float axis = 1.f - 1.f / 32;  // vertex W reads W-1: the mirror line is half a cell before u = 1
+    for (float d : {0.02f, 0.3f, 0.7f}) EXPECT_NEAR(mir.height_at(Vec2(axis + d, 0.5f)), mir.height_at(Vec2(axis - d, 0.5f)), 1e-5f) << d;
 }

@@ -222,6 +222,33 @@ TEST(CmdPrefilter, WritesACompleteModel) {
     }
 }
 
+// --wrap (issue 23): a generated map that does not tile is prefiltered as a displacement with
+// "wrap": "clamp" renders it, its 2W x 2H periodic extension; a LoD block uses the model only with
+// the same wrap.
+TEST(CmdPrefilter, WrapClampPrefiltersThePeriodicExtension) {
+    const std::string dir = make_model("wrap", {"--generator", "gaussian", "--size", "32", "-p", "mx=0.5", "-p", "sxx=0.02",
+                                                "-p", "syy=0.02", "--scales", "8", "-M", "2", "-N", "4", "--paths", "4",
+                                                "--low-paths", "4", "--interreflections", "off"});
+    PrefilteredModel m = PrefilteredModel::load(dir);
+    EXPECT_EQ(m.wrap, WrapMode::Clamp);
+    EXPECT_EQ(m.map_width, 64);
+    EXPECT_EQ(m.manifest["input"]["wrap"], "clamp");
+    EXPECT_DOUBLE_EQ(m.tile_size, 2.0);  // the extension spans two tiles
+    auto scene_with = [&](const char *wrap) {
+        const std::string path = meso::test::scratch_dir("prefilter_wrap") + "/lod_" + wrap + ".json";
+        std::ofstream(path) << fmt::format(R"({{"camera": {{"type": "perspective", "width": 8, "height": 8}},
+          "shapes": [{{"type": "rectangle", "displacement": {{"map": {{"generator": "gaussian", "size": 32, "mx": 0.5,
+            "sxx": 0.02, "syy": 0.02}}, "wrap": "{}"}}, "lod": {{"factors": [1, 8], "model": "{}"}}}}]}})",
+                                           wrap, dir);
+        return meso::test::run_cli_captured({"render", path, "--plan"});
+    };
+    meso::test::CliResult ok = scene_with("clamp");
+    EXPECT_EQ(ok.code, 0) << ok.err;
+    meso::test::CliResult bad = scene_with("mirror");
+    EXPECT_NE(bad.code, 0);
+    EXPECT_NE(bad.err.find("was made with --wrap clamp, the displacement's \"wrap\" is \"mirror\""), std::string::npos) << bad.err;
+}
+
 TEST(CmdPrefilter, BadInputIsNamed) {
     auto err = [](std::vector<std::string> args) {
         args.insert(args.begin(), "prefilter");
@@ -241,6 +268,8 @@ TEST(CmdPrefilter, BadInputIsNamed) {
                   .find("--base"),
               std::string::npos);
     EXPECT_NE(err({"--generator", "nosuch", "-o", "/tmp/x"}).find("nosuch"), std::string::npos);
+    EXPECT_NE(err({"--generator", "fbm", "--wrap", "tile", "-o", "/tmp/x"}).find(R"(--wrap: expected "repeat", "clamp" or "mirror", got "tile")"),
+              std::string::npos);
     EXPECT_NE(err({"--generator", "fbm"}).find("-o"), std::string::npos);
 }
 

@@ -84,6 +84,7 @@ prefilter::PipelineOptions validate(const PrefilterFlags &f) {
     o.flow_projected_area = parse_choice("--flow", f.flow, {"visible", "eq5"}) == 0;
     if (!(o.height_scale > 0) || !std::isfinite(o.height_scale) || !(o.tile_size > 0) || !std::isfinite(o.tile_size))
         throw UsageError("--height-scale and --tile-size must be positive and finite");
+    if (!o.wrap.empty()) parse_choice("--wrap", o.wrap, {"repeat", "clamp", "mirror"});
     o.scales = parse_scales(f.scales);
     if (o.M < 1 || o.N < 1 || o.N > 64 || o.lobes < 1 || o.lobes > 16)
         throw MesoError("prefilter: need M >= 1, 1 <= N <= 64, 1 <= lobes <= 16");
@@ -124,6 +125,9 @@ SubcommandRegistrar reg_prefilter{
          app.add_option("--map-seed", f->gen_seed, "generator: random seed")->check(CLI::NonNegativeNumber);
          app.add_option("--height-scale", o->height_scale, "world height per map unit (as the displacement's scale)")->capture_default_str();
          app.add_option("--tile-size", o->tile_size, "world size of one map tile (square cells)")->capture_default_str();
+         app.add_option("--wrap", o->wrap,
+                        "how the map continues past its edges, as the displacement's \"wrap\": repeat, clamp or mirror "
+                        "(default: repeat; clamp for a generated map that does not tile)");
          app.add_option("--base", o->base, "base BRDF: inline JSON material or a JSON file")->capture_default_str();
          app.add_option("--scales", f->scales, "downsampling factors, comma-separated")->capture_default_str();
          app.add_option("-M", o->M, "spatial resolution of T (M x M)")->capture_default_str()->check(CLI::Range(1, 256));

@@ -47,6 +47,7 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
     if (!p.has("map"))
         p.fail("expected a \"map\": a height-map file (EXR, 16-bit PNG/TIFF) or {\"generator\": \"fbm\", ...}");
     HeightMap map;
+    bool periodic = true;
     const nlohmann::json &m = p.raw("map");
     if (m.is_string()) {
         std::string file = p.get_file("map");
@@ -60,11 +61,16 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
         Properties g = p.child("map");
         std::string kind = g.get_string("generator");
         std::map<std::string, std::string> params = generator_params(g);
-        map = generate_height_map(kind, params, fmt::format("{}: {}", g.file(), g.path())).height;
+        GeneratedMap gen = generate_height_map(kind, params, fmt::format("{}: {}", g.file(), g.path()));
+        map = std::move(gen.height);
+        periodic = gen.periodic;
         d.source = "generator " + kind;
     } else {
         p.fail("map", fmt::format("expected a file name or a generator object, got {}", json_type_name(m)));
     }
+
+    d.wrap = parse_wrap_mode(p, "wrap", periodic ? WrapMode::Repeat : WrapMode::Clamp);
+    map = periodic_extension(map, d.wrap);
 
     if (p.has("transfer")) {
         // parse_ramp names the key (and the stop) in its errors; one channel: a height per value.
@@ -83,6 +89,7 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
     d.scale = p.get_float("scale", 1.f, Range::coordinate());  // world units per map unit
     d.offset = p.get_float("offset", 0.f, Range::coordinate());
     std::tie(d.tiling_u, d.tiling_v) = p.get_tiling("tiling", d.tiling_u);
+    if (d.wrap != WrapMode::Repeat) d.tiling_u *= 0.5f, d.tiling_v *= 0.5f;  // field is the 2W x 2H extension
     d.mode = p.get_enum<DisplacementMode>("mode", "shell",
                                           {{"shell", DisplacementMode::Shell}, {"tessellate", DisplacementMode::Tessellate}});
     if (d.mode == DisplacementMode::Shell) {
@@ -106,6 +113,22 @@ Displacement parse_displacement(const Properties &p, size_t max_triangles, bool 
     }
     p.check_unused("displacement");
     return d;
+}
+
+std::string wrap_range_problem(const Displacement &d, const std::vector<Vec2> &uvs) {
+    if (d.wrap != WrapMode::Clamp || uvs.empty()) return {};
+    const int W = d.field->width() / 2, H = d.field->height() / 2;  // the map before its extension
+    double xlo, xhi, ylo, yhi;
+    clamp_extension_exact_range(W, xlo, xhi);
+    clamp_extension_exact_range(H, ylo, yhi);
+    Vec2 lo = uvs[0], hi = uvs[0];
+    for (const Vec2 &t : uvs) lo = Vec2(std::min(lo.x, t.x), std::min(lo.y, t.y)), hi = Vec2(std::max(hi.x, t.x), std::max(hi.y, t.y));
+    const double sx = double(d.field->width()) * d.tiling_u, sy = double(d.field->height()) * d.tiling_v;
+    if (lo.x * sx >= xlo && hi.x * sx <= xhi && lo.y * sy >= ylo && hi.y * sy <= yhi) return {};
+    return fmt::format("with \"wrap\": \"clamp\" the surface's uv x tiling must stay within [{:g}, {:g}] x [{:g}, {:g}] "
+                       "of the map; its uvs span [{:g}, {:g}] x [{:g}, {:g}] (tiling {:g} x {:g}): use \"repeat\" or "
+                       "\"mirror\", or a smaller tiling",
+                       xlo / W, xhi / W, ylo / H, yhi / H, lo.x, hi.x, lo.y, hi.y, 2 * d.tiling_u, 2 * d.tiling_v);
 }
 
 HeightMap transfer_downsampled(const HeightMap &f, const Ramp &g, int factor) {

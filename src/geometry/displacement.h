@@ -9,6 +9,7 @@
 #pragma once
 #include <memory>
 #include <string>
+#include <vector>
 #include "core/vec.h"
 #include "geometry/heightfield.h"
 
@@ -36,7 +37,10 @@ struct Displacement {
     std::shared_ptr<const HeightMap> untransferred;
     bool field_untransferred = false;          ///< field holds f in map units; world = offset + scale * g(f)
     std::string source;                        ///< map file or generator, for messages and --plan
-    float tiling_u = 1.f, tiling_v = 1.f;      ///< repeats of the map over uv [0,1]
+    /// Repeats of `field` over uv [0,1]. With wrap clamp or mirror, field is the map's 2W x 2H
+    /// periodic_extension and these are half the user's "tiling" (the uv -> map mapping is kept).
+    float tiling_u = 1.f, tiling_v = 1.f;
+    WrapMode wrap = WrapMode::Repeat;          ///< "wrap": how the map continues past its edges
     float scale = 1.f, offset = 0.f;           ///< field = offset + scale * g(map) (for LoD maps in map units)
     DisplacementMode mode = DisplacementMode::Shell;
     SubdivScheme scheme = SubdivScheme::Bilinear;
@@ -53,12 +57,17 @@ struct Displacement {
     }
 };
 
-/// Reads the "displacement" object `p` (map | generator, transfer, scale, offset, tiling, mode,
-/// scheme, level); `max_triangles` comes from the command line (--max-triangles).
+/// Reads the "displacement" object `p` (map | generator, transfer, scale, offset, tiling, wrap,
+/// mode, scheme, level). "wrap" defaults to "repeat", or "clamp" for a generated map that does not
+/// tile (a mean-slope ramp); `max_triangles` comes from the command line (--max-triangles).
 /// apply_transfer = false (for filtering g on the statistics of f, texture/slope_source.h): with a
 /// "transfer", field is the map f itself in map units (scale 1, offset 0, g not applied) and
 /// field_untransferred is set; without one it changes nothing.
 Displacement parse_displacement(const Properties &p, size_t max_triangles, bool apply_transfer = true);
+
+/// Empty when `uvs` stay where a clamped displacement's periodic extension is exact (uv x tiling
+/// within [-0.5, 1.5) of the map, heightmap.h); otherwise what goes beyond. Repeat and mirror: empty.
+std::string wrap_range_problem(const Displacement &d, const std::vector<Vec2> &uvs);
 
 /// Paper 001 §7, "displaced geometry uses g-bar": a map `factor` times coarser whose vertex (i, j)
 /// is E[g(f)] under N(f_bar, sigma_f^2), f_bar and sigma_f^2 the mean and variance of f over the

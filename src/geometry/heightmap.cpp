@@ -88,4 +88,19 @@ HeightRange write_height_map_png16(const std::string &path, const HeightMap &map
     return r;
 }
 
+HeightMap periodic_extension(const HeightMap &map, WrapMode mode) {
+    if (mode == WrapMode::Repeat || map.empty()) return map;
+    const int64_t W = map.width, H = map.height;
+    auto index = [mode](int64_t i, int64_t n) {
+        if (mode == WrapMode::Mirror) return wrap_index(i, n, WrapMode::Mirror);
+        return i < n + n / 2 ? std::min(i, n - 1) : int64_t(0);  // clamp, negative side past n + n/2
+    };
+    HeightMap out(int(2 * W), int(2 * H));
+    for (int64_t j = 0; j < 2 * H; ++j) {
+        const int64_t sj = index(j, H);
+        for (int64_t i = 0; i < 2 * W; ++i) out.at(int(i), int(j)) = map.at(int(index(i, W)), int(sj));
+    }
+    return out;
+}
+
 }  // namespace meso

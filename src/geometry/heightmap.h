@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <string>
 #include <vector>
+#include "image/wrap_mode.h"
 
 namespace meso {
 
@@ -36,6 +37,20 @@ struct HeightMap {
     size_t memory_bytes() const { return h.size() * sizeof(float); }
     bool empty() const { return h.empty(); }
 };
+
+/// The periodic map that equals `map` under `mode` (image/wrap_mode.h) wherever a surface reads it:
+/// repeat: the map itself. mirror: the 2W x 2H map of vertex (wrap_index(i, W), wrap_index(j, H)),
+/// exact everywhere (mirroring has period 2W). clamp: 2W x 2H, vertex i < W + W/2 is clamp(i) and
+/// the rest is vertex 0 (the clamp of i - 2W), so it equals the clamped map for cell x in
+/// [-(W - W/2), W + W/2), i.e. uv x tiling within [-0.5, 1.5) for W even: far enough for a
+/// surface whose uvs span [0, 1] (ShellShape / tessellation check the actual range).
+/// Callers keep the uv -> cell map by halving the tiling (Displacement does).
+HeightMap periodic_extension(const HeightMap &map, WrapMode mode);
+/// The cell range [lo, hi) in x (n = W) or y (n = H) where periodic_extension(clamp) is exact.
+inline void clamp_extension_exact_range(int n, double &lo, double &hi) {
+    lo = -double(n - n / 2);
+    hi = double(n + n / 2);
+}
 
 /// Reads a height map: single-channel EXR (float), or 8/16-bit PNG/TIFF (values in [0,1],
 /// no sRGB decoding), or any image OpenImageIO reads. Images with several channels are

@@ -171,6 +171,7 @@ static std::shared_ptr<Shape> build_mesh_shape(TriangleMesh mesh, const Properti
     }
     if (auto dp = p.optional_child("displacement")) {
         Displacement d = parse_displacement(*dp, p.context().max_triangles);
+        if (std::string why = wrap_range_problem(d, mesh.uvs); !why.empty()) dp->fail("wrap", why);
         if (d.mode == DisplacementMode::Shell) return std::make_shared<ShellShape>(mesh, std::move(d), name);
         TriangleMesh fine = tessellate_displaced(mesh, d, fmt::format("{}: {}", p.file(), p.path()));
         return std::make_shared<MeshShape>(std::move(fine), fmt::format("{}, displaced by '{}' (tessellated)", name, d.source));

@@ -82,6 +82,9 @@ prefilter::PrefilteredModel load_lod_model(const LodSpec &spec, const Displaceme
         lp.fail("model", fmt::format("the model '{}' was made from a {}x{} map, the displacement's map ({}) is {}x{}", dir,
                                      model.map_width, model.map_height, disp.source, disp.field->width(),
                                      disp.field->height()));
+    if (model.wrap != disp.wrap)
+        lp.fail("model", fmt::format("the model '{}' was made with --wrap {}, the displacement's \"wrap\" is \"{}\"", dir,
+                                     wrap_mode_name(model.wrap), wrap_mode_name(disp.wrap)));
     const double hs = model.height_scale;
     if (std::abs(hs - double(disp.scale)) > 1e-5 * std::max(std::abs(hs), std::abs(double(disp.scale))))
         fmt::print(stderr, "{}: {}: warning: the model '{}' was made with height_scale {} but the displacement's scale "
@@ -106,11 +109,12 @@ std::vector<std::shared_ptr<Material>> level_materials(const LodSpec &spec, Shap
         shape.material = materials[0];
     } else if (spec.has_model()) {
         materials.push_back(shape.material);
+        const float k_user = disp.wrap == WrapMode::Repeat ? 1.f : 2.f;  // the user's tiling (prefiltered halves it again)
         for (size_t k = 1; k < spec.factors.size(); ++k) {
             nlohmann::json mj = {{"type", "prefiltered"},
                                  {"model", spec.model_dir},
                                  {"level", int(spec.factors[k])},
-                                 {"tiling", {disp.tiling_u, disp.tiling_v}}};
+                                 {"tiling", {disp.tiling_u * k_user, disp.tiling_v * k_user}}};
             if (!spec.scaling.empty()) mj["scaling"] = spec.scaling;
             if (!spec.estimator.empty()) mj["estimator"] = spec.estimator;
             // Located at the lod block: errors read "lod.scaling" etc., the keys the user wrote.

@@ -231,6 +231,10 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
     m.height_scale = need(in_j, "height_scale", where + " input").get<double>();
     m.tile_size = need(in_j, "tile_size", where + " input").get<double>();
     m.base = need(in_j, "base", where + " input");
+    const std::string wrap = in_j.value("wrap", std::string("repeat"));
+    if (wrap != "repeat" && wrap != "clamp" && wrap != "mirror")
+        throw MesoError(fmt::format("{}: input.wrap: expected \"repeat\", \"clamp\" or \"mirror\", got \"{}\"", where, wrap));
+    m.wrap = wrap == "clamp" ? WrapMode::Clamp : wrap == "mirror" ? WrapMode::Mirror : WrapMode::Repeat;
     const auto &par = need(j, "parameters", where);
     m.lobes = need(par, "lobes", where + " parameters").get<int>();
     m.quadrature.polar = par.value("quadrature_polar", 4);

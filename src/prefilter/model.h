@@ -99,6 +99,9 @@ struct PrefilteredModel {
     /// (= height_scale / tile_size * W); fixed by the inputs of `meso prefilter`.
     double height_scale = 1.0;  ///< world units per map unit
     double tile_size = 1.0;     ///< world size of one tile of the map (square cells)
+    /// input.wrap: with clamp or mirror the model describes the map's 2W x 2H periodic_extension
+    /// (map_width = 2W), so a `tiling` of the original map halves (absent in older models: repeat).
+    WrapMode wrap = WrapMode::Repeat;
     nlohmann::json base;        ///< the base material (a meso material object)
     int lobes = 6;
     QuadratureOptions quadrature;  ///< how f'_low integrates the NDF (part of the model)

@@ -12,6 +12,7 @@
 #include "core/error.h"
 #include "core/output_set.h"
 #include "core/progress.h"
+#include "core/properties.h"
 #include "core/registry.h"
 #include "geometry/heightfield.h"
 #include "geometry/heightmap_gen.h"
@@ -37,6 +38,7 @@ std::string scales_text(const std::vector<int> &scales) { return fmt::format("{}
 struct Inputs {
     HeightMap map;
     bool periodic = true;
+    WrapMode wrap = WrapMode::Repeat;  ///< with clamp or mirror, `map` is the 2W x 2H extension
     std::shared_ptr<Material> base;
     nlohmann::json base_json;
     nlohmann::json record;
@@ -54,8 +56,12 @@ Inputs load_inputs(const PipelineOptions &o) {
         in.periodic = g.periodic;
         in.record["generator"] = {{"kind", o.generator}, {"params", g.params}};
     }
-    if (!in.periodic)
-        if (dist::rank() == 0) std::fprintf(stderr, "prefilter: warning: the map does not tile; it is treated as periodic (seam included)\n");
+    const std::string wrap = o.wrap.empty() ? (in.periodic ? "repeat" : "clamp") : o.wrap;
+    in.wrap = WrapMode(parse_choice("--wrap", wrap, {"repeat", "clamp", "mirror"}));
+    if (!in.periodic && in.wrap == WrapMode::Repeat && dist::rank() == 0)
+        std::fprintf(stderr, "prefilter: warning: the map does not tile and --wrap repeat treats it as periodic (seam included)\n");
+    in.map = periodic_extension(in.map, in.wrap);
+    in.record["wrap"] = wrap_mode_name(in.wrap);
     std::string base_dir;
     in.base = load_material_arg(o.base, in.base_json, &base_dir);
     if (in.base->is_delta_only() || in.base->has_transmission())
@@ -70,7 +76,7 @@ Inputs load_inputs(const PipelineOptions &o) {
     in.record["map_width"] = map.width;
     in.record["map_height"] = map.height;
     in.record["height_scale"] = o.height_scale;
-    in.record["tile_size"] = o.tile_size;
+    in.record["tile_size"] = o.tile_size * (in.wrap == WrapMode::Repeat ? 1 : 2);  // of the map prefiltered
     in.record["base"] = in.base_json;
     in.record["base_dir"] = base_dir.empty() ? fs::current_path().string() : fs::absolute(base_dir).string();
     in.record["periodic"] = in.periodic;
@@ -245,9 +251,11 @@ PrefilteredLevel build_level(const PipelineOptions &o, int F, const Inputs &in, 
 
 }  // namespace
 
-PrefilteredModel build_model(const PipelineOptions &o) {
+PrefilteredModel build_model(const PipelineOptions &opts) {
     const auto t_all = Clock::now();
-    const Inputs in = load_inputs(o);
+    const Inputs in = load_inputs(opts);
+    PipelineOptions o = opts;
+    if (in.wrap != WrapMode::Repeat) o.tile_size *= 2;  // the extension spans two tiles of the map
     PrefilteredModel model = empty_model(o, in);
     const HeightMap &map = in.map;
     const double cells_per_unit = double(map.width) / o.tile_size;

@@ -25,6 +25,10 @@ struct PipelineOptions {
     std::map<std::string, std::string> generator_params;  ///< -p key=value, --size, --map-seed
     double height_scale = 1.0;  ///< --height-scale: world height per map unit
     double tile_size = 1.0;     ///< --tile-size: world size of one map tile
+    /// --wrap: how the map continues past its edges; "" = repeat, or clamp for a generated map that
+    /// does not tile. Clamp and mirror prefilter the map's 2W x 2H periodic_extension (as a
+    /// displacement with that "wrap" renders it), recorded as input.wrap and input.map_width.
+    std::string wrap;
     std::string base = R"({"type": "diffuse", "reflectance": 0.8})";  ///< --base: inline JSON or a file
     std::string output;         ///< -o: model directory
 

@@ -9,11 +9,6 @@
 
 namespace meso {
 
-WrapMode parse_wrap_mode(const Properties &p, const std::string &key) {
-    return p.get_enum<WrapMode>(key, "repeat",
-                                {{"repeat", WrapMode::Repeat}, {"clamp", WrapMode::Clamp}, {"mirror", WrapMode::Mirror}});
-}
-
 FootprintFilter parse_footprint_filter(const Properties &p, const std::string &key) {
     return p.get_enum<FootprintFilter>(
         key, "trilinear",
@@ -125,17 +120,7 @@ void MipMap::level_mean(int level, float *out) const {
     for (int c = 0; c < m_channels; ++c) out[c] = float(acc[c] / (double(L.w) * L.h));
 }
 
-int MipMap::wrap_index(int i, int n) const {
-    switch (m_wrap) {
-        case WrapMode::Clamp: return clamp(i, 0, n - 1);
-        case WrapMode::Mirror: {
-            int p = 2 * n, m = ((i % p) + p) % p;
-            return m < n ? m : p - 1 - m;
-        }
-        case WrapMode::Repeat:
-        default: return ((i % n) + n) % n;
-    }
-}
+int MipMap::wrap_index(int i, int n) const { return int(meso::wrap_index(i, n, m_wrap)); }
 
 float MipMap::level_for_footprint(float dudx, float dudy, float dvdx, float dvdy) const {
     float w = float(width(0)), h = float(height(0));

@@ -26,18 +26,15 @@
 #include <cstddef>
 #include <string>
 #include <vector>
+#include "image/wrap_mode.h"
 
 namespace meso {
-
-enum class WrapMode { Repeat, Clamp, Mirror };
 
 /// How a lookup uses the ray-differential footprint: trilinear (level from its width), EWA,
 /// or none (level-0 bilinear: the finest data under the point).
 enum class FootprintFilter { Trilinear, Ewa, None };
 
 class Properties;
-/// The wrap mode parameter `key` of a texture: "repeat" (the default), "clamp" or "mirror".
-WrapMode parse_wrap_mode(const Properties &p, const std::string &key);
 /// The footprint filter parameter `key`: "trilinear" (the default), "ewa" or "none".
 FootprintFilter parse_footprint_filter(const Properties &p, const std::string &key);
 
