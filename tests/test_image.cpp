@@ -354,7 +354,12 @@ TEST(ImageRead, ExrAttributeClaimingMoreThanTheFileIsRefusedBeforeReading) {
 // the file was opened (over 10 s under ASan), so the header walk refuses it before OpenImageIO
 // opens it.
 TEST(ImageRead, SmallFileDeclaringAHugeImageIsRefusedBeforeAllocating) {
-    for (const char *name : {"exr_datawindow_16777023x64_allocates_4GB.exr", "exr_zip_16777023x64_line_buffer_537MB.exr"}) {
+    const std::pair<const char *, const char *> cases[] = {
+        {"exr_datawindow_16777023x64_allocates_4GB.exr", "16777023x64"},
+        {"exr_zip_16777023x64_line_buffer_537MB.exr", "16777023x64"},
+        // a 104-byte attribute name (31 is the limit without the long-names flag): 11 s in OpenEXR under ASan
+        {"exr_long_attribute_name_and_short_box2i.exr", "longer than 31 bytes"}};
+    for (const auto &[name, expected] : cases) {
         const std::string path = std::string(MESO_SOURCE_DIR) + "/fuzz/regressions/" + name;
         for (int header_only = 0; header_only < 2; ++header_only) {
             try {
@@ -364,8 +369,8 @@ TEST(ImageRead, SmallFileDeclaringAHugeImageIsRefusedBeforeAllocating) {
             } catch (const meso::MesoError &e) {
                 std::string msg = e.what();
                 EXPECT_NE(msg.find(path), std::string::npos) << msg;
-                EXPECT_NE(msg.find("16777023x64"), std::string::npos) << msg;
-                EXPECT_NE(msg.find("corrupt or truncated"), std::string::npos) << msg;
+                EXPECT_NE(msg.find(expected), std::string::npos) << msg;
+                EXPECT_NE(msg.find("corrupt"), std::string::npos) << msg;
             }
         }
     }
