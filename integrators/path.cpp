@@ -29,8 +29,10 @@
 // noise-free at 16 spp; with its five neighbours it is 4% brighter (their occlusion).
 #include <fmt/format.h>
 #include <memory>
+#include <optional>
 #include <vector>
 #include "bsdf/material.h"
+#include "core/phase.h"
 #include "core/properties.h"
 #include "core/registry.h"
 #include "geometry/lod.h"
@@ -75,7 +77,8 @@ private:
                           Sampler &sampler, RenderStats &stats, PathState &st) const;
     int m_max_depth, m_rr_depth;
     bool m_hide_emitters;
-    bool m_differentials;  ///< ray-differential footprints at every hit
+    bool m_differentials;  ///< ray-differential footprints at every hit ("differentials")
+    bool m_use_differentials = true;  ///< m_differentials and a material of the scene reads them (preprocess)
     bool m_leadr_env_quadrature;
     std::string m_name;
     /// The scene's infinite lights, prefiltered (leadr_env_quadrature only).
@@ -83,6 +86,11 @@ private:
 };
 
 void PathIntegrator::preprocess(const Scene &scene) {
+    // Differentials only when a material reads the footprint (LoD selection at the camera hit
+    // computes its own).
+    m_use_differentials = false;
+    for (const auto &shape : scene.shapes)
+        if (m_differentials && shape->material && shape->material->uses_footprint()) m_use_differentials = true;
     m_envs.clear();
     if (m_leadr_env_quadrature)
         for (const Light *env : scene.infinite_lights) m_envs.push_back(PrefilteredEnvironment::from_light(*env));
@@ -150,20 +158,20 @@ Spectrum PathIntegrator::trace(const Scene &scene, RayDifferential ray, Sampler 
 }
 
 void PathIntegrator::add_escaped(const Scene &scene, const RayDifferential &ray, PathState &st) const {
+    PhaseScope phase(Phase::Light);
     for (const Light *env : scene.infinite_lights) {
-        Spectrum Le = env->eval(LightHit{}, -ray.d);
+        float pdf = 0.f;
+        Spectrum Le = env->eval_pdf(st.prev_ctx, LightHit{}, -ray.d, st.specular_bounce ? nullptr : &pdf);
         if (Le.is_black()) continue;
         float w = 1.f;
-        if (!st.specular_bounce) {
-            float lp = scene.light_pmf(env) * env->pdf(st.prev_ctx, ray.d, LightHit{});
-            w = power_heuristic(st.prev_pdf, lp);
-        }
+        if (!st.specular_bounce) w = power_heuristic(st.prev_pdf, scene.light_pmf(env) * pdf);
         st.L += st.beta * Le * w;
     }
 }
 
 void PathIntegrator::add_emitted(const Scene &scene, const RayDifferential &ray, const SurfaceInteraction &si,
                                  PathState &st) const {
+    PhaseScope phase(Phase::Light);
     LightHit lh{si.p, si.ng, si.prim};
     Spectrum Le = si.shape->emitter->eval(lh, si.wo);
     if (Le.is_black()) return;
@@ -180,8 +188,10 @@ bool PathIntegrator::scatter(const Scene &scene, RayDifferential &ray, SurfaceIn
     const bool two_sided = !mat.has_transmission();
     // Footprint at every bounce (exact transport after delta lobes, the camera-based
     // approximation after rough ones: render/differentials.h).
-    if (m_differentials) si.compute_differentials(ray, scene.camera.get());
+    std::optional<PhaseScope> phase(std::in_place, Phase::Interaction);
+    if (m_use_differentials) si.compute_differentials(ray, scene.camera.get());
     ShadingContext ctx = si.shading_context(two_sided);
+    phase.reset();
     const Vec3 wo = ctx.frame.to_local(si.wo);
     if (wo.z == 0.f && two_sided) return false;
 
@@ -208,7 +218,9 @@ bool PathIntegrator::scatter(const Scene &scene, RayDifferential &ray, SurfaceIn
     BSDFSample bs;
     float ulobe = sampler.get_1d();
     Vec2 u = sampler.get_2d();
+    phase.emplace(Phase::Bsdf);
     if (!mat.sample(ctx, wo, ulobe, u, bs) || bs.weight.is_black() || !(bs.pdf > 0.f)) return false;
+    phase.reset();
     Vec3 wi = ctx.frame.to_world(bs.wi);
     // Reject directions on the wrong side of the geometric surface for reflection.
     if ((bs.flags & BSDF_Reflection) && two_sided && dot(wi, ctx.ng) <= 0.f) return false;
@@ -222,7 +234,7 @@ bool PathIntegrator::scatter(const Scene &scene, RayDifferential &ray, SurfaceIn
     RayDifferential next(si.spawn_ray(wi));
     next.footprint_scale = ray.footprint_scale;
     next.mask = ray.mask;
-    if (m_differentials && (bs.flags & BSDF_Delta))
+    if (m_use_differentials && (bs.flags & BSDF_Delta))
         specular_differentials(ray, si, ctx.frame.n, wi, bs.flags, bs.eta, next);
     ray = next;
     return true;
@@ -237,17 +249,20 @@ void PathIntegrator::add_light_sample(const Scene &scene, const RayDifferential 
     float pmf;
     float ul = sampler.get_1d();
     Vec2 u2 = sampler.get_2d();
+    std::optional<PhaseScope> phase(std::in_place, Phase::Light);
     const Light *light = scene.sample_light(ul, pmf);
     LightSample ls;
     const bool by_quadrature = env_by_quadrature && light && light->is_infinite();  // already counted
     if (!light || !(pmf > 0.f) || by_quadrature || !light->sample(LightSampleContext{si.p, ctx.ng}, u2, ls) ||
         !(ls.pdf > 0.f) || ls.L.is_black())
         return;
+    phase.emplace(Phase::Bsdf);
     Vec3 wi = ctx.frame.to_local(ls.wi);
     // Reflection-only surfaces cannot be lit from behind their geometric side.
     bool ok = two_sided ? dot(ls.wi, ctx.ng) > 0.f : true;
     float bsdf_pdf = 0.f;
     Spectrum f = ok ? mat.eval_pdf(ctx, wo, wi, ls.delta ? nullptr : &bsdf_pdf) : Spectrum(0.f);
+    phase.reset();
     if (f.is_black()) return;
     Ray shadow = std::isinf(ls.dist) ? si.spawn_ray(ls.wi) : si.spawn_ray_to(si.p + ls.wi * ls.dist);
     shadow.mask = ray.mask;  // the path's LoD level

@@ -126,6 +126,7 @@ public:
         return fresnel_conductor(1.f, m_eta, m_k) * m_specular->eval(ctx);
     }
 
+    bool uses_footprint() const override { return any_varies({m_specular.get()}); }
     std::string to_string() const override {
         return fmt::format("conductor[{}, {}]", m_desc, m_dist ? m_dist->to_string() : "smooth");
     }

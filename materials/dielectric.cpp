@@ -180,6 +180,7 @@ public:
 
     Spectrum albedo_hint(const ShadingContext &ctx) const override { return m_trans->eval(ctx); }
 
+    bool uses_footprint() const override { return any_varies({m_refl.get(), m_trans.get()}); }
     std::string to_string() const override {
         return fmt::format("dielectric[eta={}, {}]", m_eta, m_dist ? m_dist->to_string() : "smooth");
     }

@@ -47,6 +47,7 @@ public:
     }
 
     Spectrum albedo_hint(const ShadingContext &ctx) const override { return m_reflectance->eval(ctx); }
+    bool uses_footprint() const override { return any_varies({m_reflectance.get()}); }
     std::string to_string() const override { return fmt::format("diffuse[{}]", m_reflectance->to_string()); }
 
 private:

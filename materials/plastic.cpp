@@ -218,6 +218,7 @@ public:
 
     Spectrum albedo_hint(const ShadingContext &ctx) const override { return m_diffuse->eval(ctx); }
 
+    bool uses_footprint() const override { return any_varies({m_diffuse.get(), m_specular.get()}); }
     std::string to_string() const override {
         return fmt::format("plastic[eta={}, R_int={}, {}{}]", m_eta, m_r_int, m_dist ? m_dist->to_string() : "smooth",
                            m_nonlinear ? ", nonlinear" : "");

@@ -317,7 +317,7 @@ TEST(SpotLight, FalloffAndPower) {
     EXPECT_EQ(light_error({{"type", "spot"}, {"direction", {0, 0, 1}}, {"target", {0, 0, 1}}}),
               "lights[0].target: give either 'direction' or 'target', not both");
     EXPECT_EQ(light_error({{"type", "spot"}, {"cutoff_angle", 10}, {"beam_width", 12}}),
-              "lights[0].beam_width: must be in [0, cutoff_angle = 10] degrees");
+              "lights[0].beam_width: expected a number in [0, 10], got 12");
 }
 
 TEST(DirectionalLight, IrradianceAndPower) {
@@ -331,7 +331,7 @@ TEST(DirectionalLight, IrradianceAndPower) {
     l->preprocess(Vec3(0, 0, 0), 2.f);
     EXPECT_NEAR(l->power(), Pi * 4 * 3, 1e-4);
     EXPECT_EQ(light_error({{"type", "directional"}, {"direction", {0, 0, 0}}}),
-              "lights[0].direction: must be a non-zero vector");
+              "lights[0].direction: expected a direction (a vector of non-zero finite length), got [0, 0, 0]");
     EXPECT_EQ(light_error({{"type", "directional"}, {"irradiance", 1}, {"irradiance_typo", 1}}),
               "lights[0].irradiance_typo: unknown parameter 'irradiance_typo' for light 'directional'");
 }
@@ -710,11 +710,15 @@ TEST(EnvMap, SamplingMatchesPdfChiSquare) {
     const int NZ = 12, NP = 24, N = 300000;
     std::vector<double> obs(NZ * NP, 0.0), expct(NZ * NP, 0.0);
     PCG32 rng(17);
+    int pdf_mismatches = 0;
     for (int i = 0; i < N; ++i) {
         LightSample ls;
         ASSERT_TRUE(env.sample({Vec3(), Vec3()}, {rng.next_float(), rng.next_float()}, ls));
         if (i < 20000) {
-            ASSERT_EQ(ls.pdf, env.pdf({}, ls.wi, {}));
+            // sample() takes the pdf from the sampled cell, pdf() from the cell wi maps back to:
+            // equal to float round-off, except where that round-off crosses a cell boundary.
+            const float p = env.pdf({}, ls.wi, {});
+            if (!(std::abs(ls.pdf - p) <= 1e-4f * p)) ++pdf_mismatches;
             // sample() looks up the radiance at the sampled uv, eval() at the uv re-derived from
             // wi: the bilinear lookup is continuous, so they agree to float round-off.
             ASSERT_NEAR(ls.L.r, env.eval({}, -ls.wi).r, 1e-5f * ls.L.r + 1e-7f);
@@ -727,6 +731,7 @@ TEST(EnvMap, SamplingMatchesPdfChiSquare) {
         int iz = std::min(NZ - 1, int((z + 1) * 0.5f * NZ)), ip = std::min(NP - 1, int(phi / (2 * Pi) * NP));
         obs[iz * NP + ip] += 1;
     }
+    EXPECT_LE(pdf_mismatches, 20) << "of 20000 samples, sample() and pdf() disagree by more than 1e-4";
     // Expected counts: integrate pdf over each bin (uniform in z and phi: dω = dz dphi) on a
     // 24 x 24 sub-grid.
     const int S = 24;

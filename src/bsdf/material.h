@@ -21,6 +21,7 @@
 #include <string>
 #include "core/vec.h"
 #include "geometry/shading.h"
+#include "texture/texture.h"
 
 namespace meso {
 
@@ -48,6 +49,14 @@ struct BSDFSample {
     uint32_t flags = 0;       ///< the lobe that was sampled (one BSDFFlags bit)
 };
 
+/// Whether any of `textures` varies over the surface (a non-constant texture may filter by the
+/// footprint): the usual Material::uses_footprint of a material whose parameters are textures.
+inline bool any_varies(std::initializer_list<const Texture *> textures) {
+    for (const Texture *t : textures)
+        if (t && !t->is_constant()) return true;
+    return false;
+}
+
 class Material {
 public:
     virtual ~Material() = default;
@@ -68,6 +77,10 @@ public:
     virtual Spectrum albedo_hint(const ShadingContext &ctx) const { (void)ctx; return Spectrum(0.5f); }
     /// Whether f(wo,wi) = f(wi,wo) (the test battery checks it where true).
     virtual bool is_reciprocal() const { return true; }
+    /// Whether shading reads the ray-differential footprint (ShadingContext's du/dv, filtered
+    /// textures, NDF filtering). Integrators skip computing differentials when no material of
+    /// the scene does (pay only for what is used); the default is the safe answer.
+    virtual bool uses_footprint() const { return true; }
 
     /// Optional capability, environment quadrature: a material that can integrate a whole
     /// unoccluded environment at a point by itself (`leadr`, paper 000 Algorithms 1-3) says so

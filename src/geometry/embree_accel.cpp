@@ -1,4 +1,5 @@
 #include "geometry/embree_accel.h"
+#include "core/phase.h"
 #include <chrono>
 #include <cstdio>
 #include <fmt/format.h>
@@ -79,13 +80,17 @@ static bool trace_closest(RTCScene scene, const Ray &ray, RTCRayHit &rh) {
     setup_ray(ray, rh.ray);
     rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
     rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-    rtcIntersect1(scene, &ctx, &rh);
+    {
+        PhaseScope phase(Phase::Trace);
+        rtcIntersect1(scene, &ctx, &rh);
+    }
     return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
 }
 
 bool EmbreeAccel::intersect(const Ray &ray, SurfaceInteraction &si) const {
     RTCRayHit rh;
     if (!trace_closest(m_scene, ray, rh)) return false;
+    PhaseScope phase(Phase::Interaction);
     m_shapes[rh.hit.geomID]->fill_interaction(ray, rh.ray.tfar, rh.hit.primID, rh.hit.u, rh.hit.v, si);
     return true;
 }
@@ -100,6 +105,7 @@ bool EmbreeAccel::occluded(const Ray &ray) const {
     rtcInitIntersectContext(&ctx);
     RTCRay r;
     setup_ray(ray, r);
+    PhaseScope phase(Phase::Trace);
     rtcOccluded1(m_scene, &ctx, &r);
     return r.tfar < 0.f;  // Embree sets tfar = -inf on a hit
 }

@@ -133,21 +133,39 @@ Spectrum EnvMapLight::radiance_uv(Vec2 uv) const {
            (texel(x0, y1) * (1.f - fx) + texel(x1, y1) * fx) * fy;
 }
 
-float EnvMapLight::pdf_world(Vec3 wi) const {
-    Vec3 d = normalize(m_identity ? wi : m_to_world.apply_inverse_vector(wi));
+float EnvMapLight::pdf_local(Vec3 d, Vec2 uv) const {
     float sin_theta = std::sqrt(d.x * d.x + d.z * d.z);
     if (!(sin_theta > 0.f)) return 0.f;
-    float pdf = m_distr.pdf(direction_to_uv(d)) / (2.f * Pi * Pi * sin_theta);
+    float pdf = m_distr.pdf(uv) / (2.f * Pi * Pi * sin_theta);
     return std::isfinite(pdf) ? pdf : 0.f;
+}
+
+float EnvMapLight::pdf_world(Vec3 wi) const {
+    Vec3 d = normalize(m_identity ? wi : m_to_world.apply_inverse_vector(wi));
+    return pdf_local(d, direction_to_uv(d));
+}
+
+Spectrum EnvMapLight::eval_pdf(const LightSampleContext &, const LightHit &, const Vec3 &w, float *pdf) const {
+    Vec3 d = normalize(m_identity ? -w : m_to_world.apply_inverse_vector(-w));
+    const Vec2 uv = direction_to_uv(d);
+    if (pdf) *pdf = pdf_local(d, uv);
+    return radiance_uv(uv);
 }
 
 bool EnvMapLight::sample(const LightSampleContext &, Vec2 u, LightSample &out) const {
     float pdf_uv;
     Vec2 uv = m_distr.sample_continuous(u, &pdf_uv);
     if (!(pdf_uv > 0.f)) return false;
-    Vec3 wi = m_identity ? uv_to_direction(uv) : normalize(m_to_world.apply_vector(uv_to_direction(uv)));
-    float pdf = pdf_world(wi);
-    if (!(pdf > 0.f)) return false;
+    // The density of the sampled direction from the sampled cell's own pdf (pdf_uv over the
+    // Jacobian 2 pi^2 sin theta of the lat-long map): what pdf(wi) returns, without mapping wi
+    // back to uv (atan2, acos and a second table lookup). The two agree except within float
+    // round-off of a cell boundary.
+    const float phi = 2.f * Pi * uv.x, theta = Pi * uv.y;
+    const float st = std::sin(theta);
+    const Vec3 d(std::sin(phi) * st, std::cos(theta), -std::cos(phi) * st);
+    Vec3 wi = m_identity ? d : normalize(m_to_world.apply_vector(d));
+    float pdf = st > 0.f ? pdf_uv / (2.f * Pi * Pi * st) : 0.f;
+    if (!(pdf > 0.f) || !std::isfinite(pdf)) return false;
     out.wi = wi;
     out.dist = Infinity;
     out.pdf = pdf;

@@ -44,12 +44,16 @@ public:
     float pdf(const LightSampleContext &ctx, const Vec3 &wi, const LightHit &hit) const override;
     /// w = -ray.d (as for area lights): returns radiance(-w), the environment seen along ray.d.
     Spectrum eval(const LightHit &hit, const Vec3 &w) const override;
+    /// One atan2/acos and one lookup for both the radiance along -w and its pdf.
+    Spectrum eval_pdf(const LightSampleContext &ctx, const LightHit &hit, const Vec3 &w, float *pdf) const override;
     bool is_infinite() const override { return true; }
     float power() const override;
     std::string to_string() const override;
 
 private:
     float pdf_world(Vec3 wi) const;
+    /// The solid-angle pdf of local direction d (unit) whose texture coordinates are uv.
+    float pdf_local(Vec3 d, Vec2 uv) const;
     Spectrum texel(int x, int y) const;
 
     int m_w = 0, m_h = 0;

@@ -44,6 +44,12 @@ public:
     /// Radiance leaving an area light at `hit` towards -w (w points from the emitter to the
     /// viewer... i.e. w = -ray.d), or arriving from direction -ray.d for infinite lights.
     virtual Spectrum eval(const LightHit &hit, const Vec3 &w) const = 0;
+    /// eval(hit, w) and, when `pdf` is not null, pdf(ctx, -w, hit) into *pdf: the same values as
+    /// the two calls (an environment map shares the direction's lookup between them).
+    virtual Spectrum eval_pdf(const LightSampleContext &ctx, const LightHit &hit, const Vec3 &w, float *pdf) const {
+        if (pdf) *pdf = this->pdf(ctx, -w, hit);
+        return eval(hit, w);
+    }
     virtual bool is_delta() const { return false; }
     virtual bool is_infinite() const { return false; }
     /// Total emitted power estimate (used to choose lights in proportion to power).

@@ -1,4 +1,5 @@
 #include "render/renderer.h"
+#include "core/phase.h"
 #include <sys/resource.h>
 #include <tbb/blocked_range2d.h>
 #include <tbb/enumerable_thread_specific.h>
@@ -88,13 +89,18 @@ void render_pass(const Scene &scene, const RenderOptions &opts, const Window &wi
                             cs.film = Vec2(x + j.x, y + j.y);
                             cs.lens = sampler->get_2d();
                             RayDifferential ray;
-                            float w = scene.camera->generate_ray(cs, ray);
-                            ray.scale_differentials(diff_scale);
+                            float w;
+                            {
+                                PhaseScope phase(Phase::Camera);
+                                w = scene.camera->generate_ray(cs, ray);
+                                ray.scale_differentials(diff_scale);
+                            }
                             Spectrum L = scene.integrator->li(scene, ray, *sampler, st) * w;
                             if (!L.is_finite()) {
                                 film.nan_count.fetch_add(1, std::memory_order_relaxed);
                                 continue;
                             }
+                            PhaseScope phase(Phase::Film);
                             px[0] += L.r;
                             px[1] += L.g;
                             px[2] += L.b;
