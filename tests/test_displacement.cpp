@@ -397,3 +397,25 @@ TEST(Displacement, WrapModesAtTheFarEdge) {
     const float axis = 1.f - 1.f / 32;  // vertex W reads W-1: the mirror line is half a cell before u = 1
     for (float d : {0.02f, 0.3f, 0.7f}) EXPECT_NEAR(mir.height_at(Vec2(axis + d, 0.5f)), mir.height_at(Vec2(axis - d, 0.5f)), 1e-5f) << d;
 }
+
+// `meso info SCENE --json -` reports the surface's own scales (issue 21: the bench takes the
+// prefilter's tile size from here, not from the displacement's scale): a rectangle scaled by 3
+// has uvs 6 world units long; tiled 4 times with a 32-vertex map, a tile is 1.5 and a cell
+// 1.5 / 32, whatever the height scale.
+TEST(Displacement, InfoReportsTileAndCellSizeInWorldUnits) {
+    const std::string path = write_temp("disp_info.json", R"({"camera": {"type": "perspective", "width": 8, "height": 8},
+        "shapes": [{"type": "rectangle", "to_world": {"scale": 3},
+                    "displacement": {"map": {"generator": "fbm", "size": 32}, "scale": 0.2, "tiling": 4, "wrap": "mirror"}}]})");
+    meso::test::CliResult r = meso::test::run_cli_captured({"info", path, "--json", "-"});
+    ASSERT_EQ(r.code, 0) << r.err;
+    const nlohmann::json j = nlohmann::json::parse(r.out);
+    const nlohmann::json &s = j["shapes"][0];
+    EXPECT_NEAR(s["uv_world_length"][0].get<double>(), 6.0, 1e-5);
+    const nlohmann::json &d = s["displacement"];
+    EXPECT_EQ(d["map"][0], 32);  // the map as given, not its mirrored extension
+    EXPECT_NEAR(d["tiling"][0].get<double>(), 4.0, 1e-6);
+    EXPECT_NEAR(d["tile_world"][1].get<double>(), 1.5, 1e-5);
+    EXPECT_NEAR(d["cell_world"][0].get<double>(), 1.5 / 32, 1e-6);
+    EXPECT_NEAR(d["scale"].get<double>(), 0.2, 1e-7);
+    EXPECT_EQ(d["wrap"], "mirror");
+}

@@ -28,6 +28,27 @@ float TriangleMesh::surface_area() const {
     return float(a);
 }
 
+bool TriangleMesh::uv_world_length(double &lu, double &lv) const {
+    if (uvs.size() != positions.size()) return false;
+    double su = 0, sv = 0, area = 0;
+    for (size_t t = 0; t < triangle_count(); ++t) {
+        const uint32_t i0 = indices[3 * t], i1 = indices[3 * t + 1], i2 = indices[3 * t + 2];
+        const Vec2 d1 = uvs[i1] - uvs[i0], d2 = uvs[i2] - uvs[i0];
+        const double det = double(d1.x) * d2.y - double(d1.y) * d2.x;
+        const double a = triangle_area(t);
+        if (!(std::abs(det) > 1e-20) || !(a > 0)) continue;
+        const Vec3 e1 = positions[i1] - positions[i0], e2 = positions[i2] - positions[i0];
+        const Vec3 dpdu = (e1 * d2.y - e2 * d1.y) * float(1 / det), dpdv = (e2 * d1.x - e1 * d2.x) * float(1 / det);
+        su += a * length(dpdu);
+        sv += a * length(dpdv);
+        area += a;
+    }
+    if (!(area > 0) || !std::isfinite(su) || !std::isfinite(sv)) return false;
+    lu = su / area;
+    lv = sv / area;
+    return true;
+}
+
 size_t TriangleMesh::memory_bytes() const {
     return positions.size() * sizeof(Vec3) + normals.size() * sizeof(Vec3) + uvs.size() * sizeof(Vec2) +
            tangents.size() * sizeof(Vec3) + tangent_signs.size() * sizeof(float) + indices.size() * sizeof(uint32_t);

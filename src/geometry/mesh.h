@@ -20,6 +20,10 @@ struct TriangleMesh {
     void transform(const Transform &t);
     float triangle_area(size_t tri) const;
     float surface_area() const;
+    /// World length of one unit of u and of v: the area-weighted mean of |dp/du| and |dp/dv|
+    /// over the triangles with a non-degenerate uv parameterisation (a rectangle scaled by s:
+    /// 2s each). False without uvs or when no triangle has one.
+    bool uv_world_length(double &lu, double &lv) const;
     /// Memory held, in bytes (for `meso render --plan`).
     size_t memory_bytes() const;
     /// Throws MesoError naming `where` when indices are out of range or sizes disagree.

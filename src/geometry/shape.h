@@ -39,6 +39,11 @@ public:
     /// Texels per unit uv of the shape's own full-resolution map (a displacement map with
     /// its tiling), for footprints and LoD; false when the shape has none.
     virtual bool texel_grid(double &width, double &height) const { return false; }
+    /// World length of one unit of u and v (TriangleMesh::uv_world_length); false when unknown.
+    virtual bool uv_world_length(double &lu, double &lv) const {
+        const TriangleMesh *m = mesh();
+        return m && m->uv_world_length(lu, lv);
+    }
 
     std::shared_ptr<Material> material;
     std::shared_ptr<Light> emitter;  ///< area light, or null

@@ -54,6 +54,7 @@ public:
         height = double(m_disp.field->height()) * m_disp.tiling_v;
         return true;
     }
+    bool uv_world_length(double &lu, double &lv) const override { return m_base.uv_world_length(lu, lv); }
     float shell_min() const { return m_hmin; }
     float shell_max() const { return m_hmax; }
 
