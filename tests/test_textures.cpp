@@ -237,6 +237,18 @@ TEST(TextureBitmap, ChannelSelectsOneChannelAsGrey) {
               "scene.json: textures.tex.channel: expected \"rgb\", \"r\", \"g\", \"b\" or \"a\", got \"x\"");
 }
 
+TEST(TextureBitmap, AlphaIsNotMultipliedIntoColour) {
+    // scenes/tests/alpha_half.png: two sRGB-188 grey texels with alpha 255 and 0 (PNG stores
+    // colour unassociated). The colour is read as stored whatever the alpha (OpenImageIO would
+    // premultiply it: 0 for the transparent texel); channel "a" reads the alpha, linear.
+    const std::string file = std::string(MESO_SOURCE_DIR) + "/scenes/tests/alpha_half.png";
+    auto rgb = make_texture({{"type", "bitmap"}, {"filename", file}, {"filter_type", "nearest"}, {"raw", true}});
+    auto a = make_texture({{"type", "bitmap"}, {"filename", file}, {"filter_type", "nearest"}, {"channel", "a"}});
+    for (float u : {0.25f, 0.75f}) EXPECT_NEAR(rgb->eval(at(u, 0.5f)).g, 188 / 255.0, 1e-5) << u;
+    EXPECT_NEAR(a->eval_float(at(0.25f, 0.5f)), 1.0, 1e-6);
+    EXPECT_NEAR(a->eval_float(at(0.75f, 0.5f)), 0.0, 1e-6);
+}
+
 TEST(TextureBitmap, MissingAndMalformedFiles) {
     EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "missing.png"}}),
               "scene.json: textures.tex.filename: file not found: '" + tmp_dir() + "/missing.png'");
