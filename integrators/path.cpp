@@ -172,7 +172,7 @@ void PathIntegrator::add_escaped(const Scene &scene, const RayDifferential &ray,
 void PathIntegrator::add_emitted(const Scene &scene, const RayDifferential &ray, const SurfaceInteraction &si,
                                  PathState &st) const {
     PhaseScope phase(Phase::Light);
-    LightHit lh{si.p, si.ng, si.prim};
+    LightHit lh{si.p, si.ng, si.prim, si.uv};
     Spectrum Le = si.shape->emitter->eval(lh, si.wo);
     if (Le.is_black()) return;
     float w = 1.f;

@@ -12,6 +12,11 @@
 //                   slope of the map under the footprint, mapped to the shading frame exactly
 //                   through dp/du, dp/dv (paper 000 eq. 11-12)
 //        mean_slope / normal: constants
+//   scale (glTF 2.0 material.normalTextureInfo.scale): n' = normalize(scale n'x, scale n'y, n'z)
+//        before the frame is built, so 0 gives the unperturbed frame and 2 tilts further; for
+//        an image the filtered average of the texels is scaled, as a GPU scales the filtered
+//        sample (the per-texel renormalisation does not change a texel's direction, so one
+//        texel gives glTF's normalize((2c - 1) * (scale, scale, 1)) exactly)
 //   frame' = (s', t', n') with s' = s made orthogonal to n' (Gram-Schmidt), t' = n' x s'
 //   eval(wo, wi) = nested.eval(ctx', wo', wi'), pdf likewise, sample: the nested sample
 //   mapped back; ctx' is ctx with frame' (in world space); w' = w in frame'.
@@ -31,6 +36,7 @@
 //   max_anisotropy  float          8          ewa only
 //   mean_slope      [x, y]         -          constant mean slope: n' = (-x, -y, 1) / |.|
 //   normal          [x, y, z]      -          constant normal (normalised, z > 0)
+//   scale           float          1          [-1000, 1000]: multiplies x and y of n' (any source)
 //   exactly one of normals, heightmap, mean_slope, normal
 #include <cmath>
 #include <fmt/format.h>
@@ -46,8 +52,9 @@ namespace {
 
 class NormalMap final : public Material {
 public:
-    NormalMap(std::shared_ptr<Material> nested, std::optional<NormalSource> normals, std::optional<SlopeSource> slopes)
-        : m_nested(std::move(nested)), m_normals(std::move(normals)), m_slopes(std::move(slopes)) {
+    NormalMap(std::shared_ptr<Material> nested, std::optional<NormalSource> normals, std::optional<SlopeSource> slopes,
+              float scale)
+        : m_nested(std::move(nested)), m_normals(std::move(normals)), m_slopes(std::move(slopes)), m_scale(scale) {
         m_reflect_only = !m_nested->has_transmission();
         if ((m_normals && m_normals->is_constant()) || (m_slopes && m_slopes->is_constant()))
             m_const = std::make_unique<Frame>(frame_of(ShadingContext{}));
@@ -94,9 +101,9 @@ public:
     }
 
     std::string to_string() const override {
-        return fmt::format("normalmap[{}, {}]",
+        return fmt::format("normalmap[{}{}, {}]",
                            m_normals ? m_normals->to_string() : "mean slope of " + m_slopes->to_string(),
-                           m_nested->to_string());
+                           m_scale != 1.f ? fmt::format(", scale {}", m_scale) : "", m_nested->to_string());
     }
 
 private:
@@ -112,6 +119,7 @@ private:
             const SlopeGaussian g = m_slopes->eval(ctx);
             n[0] = -g.mx, n[1] = -g.my, n[2] = 1.0;
         }
+        n[0] *= m_scale, n[1] *= m_scale;
         const double l = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
         if (!(l > 1e-30) || !std::isfinite(l)) return Frame();  // no direction: the shading frame
         return perturbed_frame(Vec3(float(n[0] / l), float(n[1] / l), float(n[2] / l)));
@@ -127,6 +135,7 @@ private:
     std::shared_ptr<Material> m_nested;
     std::optional<NormalSource> m_normals;
     std::optional<SlopeSource> m_slopes;
+    float m_scale = 1.f;  ///< glTF normalTexture.scale on the x and y of the normal
     bool m_reflect_only = true;
     std::unique_ptr<Frame> m_const;
 };
@@ -143,6 +152,7 @@ std::shared_ptr<Material> make_normalmap(const Properties &p) {
         }
     if (given.empty()) p.fail("expected a normal source: \"normals\", \"heightmap\", \"mean_slope\" or \"normal\"");
     if (p.has("covariance")) p.fail("covariance", "normal mapping uses the mean slope only (lean/leadr use the covariance)");
+    const float scale = p.get_float("scale", 1.f, Range::closed(-1000.0, 1000.0));
     std::optional<NormalSource> normals;
     std::optional<SlopeSource> slopes;
     if (given == "normals" || given == "normal") {
@@ -151,7 +161,7 @@ std::shared_ptr<Material> make_normalmap(const Properties &p) {
         if (p.has("tiling")) p.fail("tiling", "the heightmap's tiling goes inside its \"heightmap\" block");
         slopes = SlopeSource::parse(p);
     }
-    return std::make_shared<NormalMap>(nested, std::move(normals), std::move(slopes));
+    return std::make_shared<NormalMap>(nested, std::move(normals), std::move(slopes), scale);
 }
 
 MESO_REGISTER_MATERIAL("normalmap", "normal mapping around a nested material: normal map or mean slope of a height map",

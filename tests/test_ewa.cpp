@@ -363,7 +363,7 @@ TEST(EwaBitmap, FilterTypeAndMaxAnisotropy) {
     half.dvdy *= 0.5f;
     EXPECT_FLOAT_EQ(bitmap({{"filter_type", "ewa"}, {"tiling", 2}})->eval(half).g, ewa->eval(ctx).g);
     EXPECT_EQ(bitmap_error({{"filter_type", "ewa"}, {"max_anisotropy", 0.5}}),
-              "scene.json: textures.tex.max_anisotropy: expected a finite number >= 1");
+              "scene.json: textures.tex.max_anisotropy: expected a number at least 1, got 0.5");
     EXPECT_EQ(bitmap_error({{"filter_type", "ewa"}, {"max_anisotropy", 1e39}}),
               "scene.json: textures.tex.max_anisotropy: expected a finite number of magnitude at most 3.4e38, got 1e+39");
     EXPECT_NE(bitmap_error({{"filter_type", "ewa"}, {"max_anisotropy", "high"}}).find("textures.tex.max_anisotropy"),

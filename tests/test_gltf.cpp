@@ -475,7 +475,10 @@ TEST(Gltf, TextureFactorsEmbeddedImagesAndUnsupportedFeatures) {
     EXPECT_EQ(fs::path(embedded).extension(), ".png");
 
     // A tinted base colour multiplies the texture; metallic/roughness factors scale the channels;
-    // a normal texture wraps the material in normalmap; unsupported features warn naming the material.
+    // KHR_texture_transform becomes tiling, offset and rotation (also on the roughness, which
+    // reads the metallic texture's green channel); a normal texture wraps the material in
+    // normalmap with its scale; BLEND is MASK at 0.5 (checker.png has no alpha channel: the
+    // alpha is the factor); unsupported features warn naming the material.
     std::ifstream in(fixture("textured.gltf"));
     json doc = json::parse(in);
     json &pbr = doc["materials"][0]["pbrMetallicRoughness"];
@@ -484,8 +487,11 @@ TEST(Gltf, TextureFactorsEmbeddedImagesAndUnsupportedFeatures) {
     pbr["roughnessFactor"] = 0.5;
     pbr["baseColorTexture"]["extensions"] = {{"KHR_texture_transform", {{"scale", {2, 3}}, {"offset", {0.5, 0}}, {"rotation", 0.1}}},
                                              {"EXT_unknown", json::object()}};
-    doc["materials"][0]["normalTexture"] = {{"index", 0}, {"scale", 0.5}};
+    doc["materials"][0]["normalTexture"] = {{"index", 0}, {"scale", 0.5},
+                                            {"extensions", {{"KHR_texture_transform", {{"scale", {2, 2}}, {"rotation", 0.3}}}}}};
     doc["materials"][0]["alphaMode"] = "BLEND";
+    doc["materials"][0]["pbrMetallicRoughness"]["metallicRoughnessTexture"]["extensions"] = {
+        {"KHR_texture_transform", {{"rotation", -0.5}}}};
     GltfTemp tmp;
     std::ifstream png(fixture("checker.png"), std::ios::binary), mr(fixture("mr.png"), std::ios::binary);
     tmp.write("checker.png", std::string(std::istreambuf_iterator<char>(png), {}));
@@ -497,6 +503,8 @@ TEST(Gltf, TextureFactorsEmbeddedImagesAndUnsupportedFeatures) {
     const json &m = j["materials"]["checker"];
     ASSERT_EQ(m["type"], "normalmap");
     EXPECT_EQ(m["normals"], "checker.png");
+    EXPECT_EQ(m["scale"], 0.5);
+    EXPECT_EQ(m["tiling"], json::parse("[2.0, 2.0]"));  // the normal map's transform: its scale only
     const json &b = m["bsdf"];
     EXPECT_EQ(b["type"], "gltf_pbr");
     EXPECT_EQ(b["base_color"]["type"], "combine");
@@ -505,14 +513,73 @@ TEST(Gltf, TextureFactorsEmbeddedImagesAndUnsupportedFeatures) {
     EXPECT_NEAR(b["roughness"]["scale"].get<double>(), 0.5, 1e-6);
     EXPECT_EQ(b["base_color"]["terms"][0]["texture"]["tiling"], json::parse("[2.0, 3.0]"));  // KHR_texture_transform
     EXPECT_EQ(b["base_color"]["terms"][0]["texture"]["offset"], json::parse("[0.5, 0.0]"));
-    EXPECT_NE(err.find("material 'checker': baseColorTexture: KHR_texture_transform rotation is not supported"), std::string::npos) << err;
+    EXPECT_NEAR(b["base_color"]["terms"][0]["texture"]["rotation"].get<double>(), 0.1, 1e-12);
+    EXPECT_NEAR(b["metallic"]["rotation"].get<double>(), -0.5, 1e-12);
+    EXPECT_NEAR(b["roughness"]["rotation"].get<double>(), -0.5, 1e-12);
+    EXPECT_EQ(b["roughness"]["channel"], "g");
+    EXPECT_EQ(j["shapes"][0]["alpha"], 1.0);
+    EXPECT_EQ(j["shapes"][0]["alpha_cutoff"], 0.5);
+    EXPECT_EQ(err.find("baseColorTexture: KHR_texture_transform"), std::string::npos) << err;
+    EXPECT_EQ(err.find("normalTexture scale"), std::string::npos) << err;
+    EXPECT_NE(err.find("material 'checker': normalTexture: KHR_texture_transform offset and rotation are not applied"),
+              std::string::npos) << err;
     EXPECT_NE(err.find("material 'checker': baseColorTexture: extension EXT_unknown is not supported"), std::string::npos) << err;
-    EXPECT_NE(err.find("material 'checker': normalTexture scale 0.5 is ignored"), std::string::npos) << err;
-    EXPECT_NE(err.find("material 'checker': alphaMode BLEND is not supported"), std::string::npos) << err;
+    EXPECT_NE(err.find("material 'checker': alphaMode BLEND is rendered as MASK with alphaCutoff 0.5"), std::string::npos) << err;
     auto s = load_scene(p, {"camera.width=8", "camera.height=8"});
     s->build();
     EXPECT_EQ(test::render_scene(*s, 2).nan_count, 0);
 }
+
+namespace {
+
+/// textured.gltf (its images copied into `tmp`) lit by a directional light of irradiance 3
+/// coming from `degrees` off the quad's normal (+z) towards +y: a node rotated by −degrees
+/// about x, so that the light's −z becomes (0, −sin, −cos).
+json lit_textured_doc(const GltfTemp &tmp, double degrees) {
+    std::ifstream in(fixture("textured.gltf"));
+    json doc = json::parse(in);
+    doc["extensionsUsed"] = {"KHR_lights_punctual"};
+    doc["extensions"] = {{"KHR_lights_punctual", {{"lights", {{{"type", "directional"}, {"intensity", 3}}}}}}};
+    doc["scenes"][0]["nodes"].push_back(2);
+    const double half = -0.5 * degrees * Pi / 180.0;
+    doc["nodes"].push_back({{"name", "sun"}, {"rotation", {std::sin(half), 0, 0, std::cos(half)}},
+                            {"extensions", {{"KHR_lights_punctual", {{"light", 0}}}}}});
+    for (const char *f : {"checker.png", "mr.png", "normal_up.png", "alpha_half.png"}) {
+        std::ifstream png(fixture(f), std::ios::binary);
+        tmp.write(f, std::string(std::istreambuf_iterator<char>(png), {}));
+    }
+    return doc;
+}
+
+/// `doc` with normal_up.png as its normal texture (scale omitted when 1).
+json with_normal_up(json doc, double scale) {
+    doc["images"].push_back({{"uri", "normal_up.png"}});
+    doc["textures"].push_back({{"source", int(doc["images"].size()) - 1}, {"sampler", 0}});
+    doc["materials"][0]["normalTexture"] = {{"index", int(doc["textures"].size()) - 1}};
+    if (scale != 1.0) doc["materials"][0]["normalTexture"]["scale"] = scale;
+    return doc;
+}
+
+/// Sum over the pixels and channels of a 16 x 16 direct-lighting render of `doc` (4 spp).
+double render_sum(const GltfTemp &tmp, const json &doc, const std::string &name) {
+    auto s = load_scene(tmp.write(name, doc.dump()), {"camera.width=16", "camera.height=16", "integrator.type=direct"});
+    s->build();
+    RenderResult r = test::render_scene(*s, 4);
+    double sum = 0;
+    for (int y = 0; y < 16; ++y)
+        for (int x = 0; x < 16; ++x) sum += r.image.at(x, y, 0) + r.image.at(x, y, 1) + r.image.at(x, y, 2);
+    return sum;
+}
+
+/// cos between the light from `degrees` off +z towards +y and normal_up.png's normal scaled
+/// by `scale` as glTF says: normalize((2c − 1) · (scale, scale, 1)), c = (128, 220, 255) / 255.
+double scaled_normal_up_cosine(double scale, double degrees) {
+    const double a = degrees * Pi / 180.0;
+    const double x = scale * (2 * 128 / 255.0 - 1), y = scale * (2 * 220 / 255.0 - 1), z = 1.0;
+    return (y * std::sin(a) + z * std::cos(a)) / std::sqrt(x * x + y * y + z * z);
+}
+
+}  // namespace
 
 TEST(Gltf, NormalTextureTiltsTowardsTheBitangent) {
     // glTF tangent space: red = +u (the tangent), green = the bitangent cross(N, T)·w, which on
@@ -521,34 +588,141 @@ TEST(Gltf, NormalTextureTiltsTowardsTheBitangent) {
     // cos = n'·l = 0.987 instead of the flat 0.707 (a flipped green channel would give 0.157).
     // Ratio of the mapped to the flat render of the diffuse-like quad: ≈ 0.987/0.707 = 1.40,
     // up to the view-dependent Fresnel weights (a few %).
-    std::ifstream in(fixture("textured.gltf"));
-    json doc = json::parse(in);
-    doc["extensionsUsed"] = {"KHR_lights_punctual"};
-    doc["extensions"] = {{"KHR_lights_punctual", {{"lights", {{{"type", "directional"}, {"intensity", 3}}}}}}};
-    doc["scenes"][0]["nodes"].push_back(2);
-    doc["nodes"].push_back({{"name", "sun"}, {"rotation", {-0.38268343, 0, 0, 0.92387953}},
-                            {"extensions", {{"KHR_lights_punctual", {{"light", 0}}}}}});
     GltfTemp tmp;
-    for (const char *f : {"checker.png", "mr.png", "normal_up.png"}) {
-        std::ifstream png(fixture(f), std::ios::binary);
-        tmp.write(f, std::string(std::istreambuf_iterator<char>(png), {}));
-    }
-    auto mean_render = [&](bool mapped) {
-        json d = doc;
-        if (mapped) {
-            d["images"].push_back({{"uri", "normal_up.png"}});
-            d["textures"].push_back({{"source", 2}, {"sampler", 0}});
-            d["materials"][0]["normalTexture"] = {{"index", 2}};
-        }
-        auto s = load_scene(tmp.write(mapped ? "mapped.gltf" : "flat.gltf", d.dump()),
-                            {"camera.width=16", "camera.height=16", "integrator.type=direct"});
-        s->build();
-        RenderResult r = test::render_scene(*s, 4);
-        double sum = 0;
-        for (int y = 0; y < 16; ++y)
-            for (int x = 0; x < 16; ++x) sum += r.image.at(x, y, 0) + r.image.at(x, y, 1) + r.image.at(x, y, 2);
-        return sum;
-    };
-    const double ratio = mean_render(true) / mean_render(false);
+    const json doc = lit_textured_doc(tmp, 45.0);
+    const double ratio = render_sum(tmp, with_normal_up(doc, 1.0), "mapped.gltf") / render_sum(tmp, doc, "flat.gltf");
     EXPECT_NEAR(ratio, 0.9873 / 0.7071, 0.1);
+}
+
+TEST(Gltf, NormalTextureScale) {
+    // normalTexture.scale s: n' = normalize((2c − 1) · (s, s, 1)). The light comes from 70°
+    // off the normal towards +y. s = 0 is no perturbation at all: the flat render to rounding
+    // (one directional light and nothing else to hit: no noise). s = 1 and 2 must render as the
+    // same material around the constant analytic n' (normalmap "normal"), to rounding; and n'·l
+    // grows from 0.829 (s = 1, n' 36° off the normal) to 0.968 (s = 2, 55°): the s = 2 render
+    // is brighter by that ratio, 1.168, up to the Fresnel weights of the diffuse lobe
+    // (measured 1.153).
+    GltfTemp tmp;
+    const json doc = lit_textured_doc(tmp, 70.0);
+    const double flat = render_sum(tmp, doc, "flat.gltf");
+    ASSERT_GT(flat, 0.0);
+    EXPECT_NEAR(render_sum(tmp, with_normal_up(doc, 0.0), "s0.gltf") / flat, 1.0, 1e-5);
+    double mapped[3] = {0, 0, 0};
+    for (int s : {1, 2}) {
+        const std::string name = fmt::format("s{}.gltf", s);
+        mapped[s] = render_sum(tmp, with_normal_up(doc, s), name);
+        json scene = gltf_scene_to_json(tmp.write(name, with_normal_up(doc, s).dump()));
+        json &m = scene["materials"]["checker"];
+        ASSERT_EQ(m["type"], "normalmap");
+        if (s == 1) EXPECT_FALSE(m.contains("scale"));
+        else EXPECT_EQ(m["scale"], 2.0);
+        m.erase("normals");
+        m.erase("scale");
+        m["normal"] = {s * (2 * 128 / 255.0 - 1), s * (2 * 220 / 255.0 - 1), 1.0};
+        EXPECT_NEAR(mapped[s] / render_sum(tmp, scene, fmt::format("s{}.json", s)), 1.0, 1e-4) << "scale " << s;
+    }
+    const double want = scaled_normal_up_cosine(2, 70.0) / scaled_normal_up_cosine(1, 70.0);
+    EXPECT_NEAR(mapped[2] / mapped[1], want, 0.03 * want);
+}
+
+namespace {
+
+/// Mean of channel `ch` over the x0..x0+w-1, y0..y0+h-1 pixels of `img`.
+double block_mean(const Image &img, int x0, int y0, int w, int h, int ch) {
+    double sum = 0;
+    for (int y = y0; y < y0 + h; ++y)
+        for (int x = x0; x < x0 + w; ++x) sum += img.at(x, y, ch);
+    return sum / (w * h);
+}
+
+}  // namespace
+
+TEST(Gltf, EmissiveTextureGivesATexturedEmitter) {
+    // emission = emissiveFactor × emissiveStrength × emissiveTexture (sRGB): factor (1, 0.5, 1),
+    // strength 2, the checker texture. The quad emits that and nothing lights it (no punctual
+    // lights, so no default environment either): each quadrant's centre shows
+    // 2 · (1, 0.5, 1) · its texel's linear colour, exactly (nearest filter).
+    GltfTemp tmp;
+    json doc = lit_textured_doc(tmp, 45.0);
+    doc.erase("extensions");
+    doc["extensionsUsed"] = {"KHR_materials_emissive_strength"};
+    doc["nodes"].erase(2);
+    doc["scenes"][0]["nodes"] = {0, 1};
+    json &m = doc["materials"][0];
+    m["emissiveFactor"] = {1.0, 0.5, 1.0};
+    m["emissiveTexture"] = {{"index", 0}};
+    m["extensions"] = {{"KHR_materials_emissive_strength", {{"emissiveStrength", 2.0}}}};
+    const std::string p = tmp.write("emissive.gltf", doc.dump());
+    json j = gltf_scene_to_json(p);
+    EXPECT_EQ(j["shapes"][0]["emitter"]["radiance"], "checker_emission");
+    const json &e = j["textures"]["checker_emission"];
+    EXPECT_EQ(e["type"], "combine");
+    EXPECT_EQ(e["terms"][0]["texture"]["filename"], "checker.png");
+    EXPECT_EQ(e["terms"][0]["texture"]["raw"], false);
+    EXPECT_EQ(e["terms"][1]["texture"], json::parse("[2.0, 1.0, 2.0]"));
+    EXPECT_EQ(j["lights"], json::array());
+
+    auto s = load_scene(p, {"camera.width=32", "camera.height=32"});
+    s->build();
+    RenderResult r = test::render_scene(*s, 4);
+    const Spectrum texel[2][2] = {{Spectrum(1, 0, 0), Spectrum(0, 1, 0)}, {Spectrum(0, 0, 1), Spectrum(0.50289f)}};
+    const Spectrum factor(2.f, 1.f, 2.f);
+    for (int qy = 0; qy < 2; ++qy)
+        for (int qx = 0; qx < 2; ++qx)
+            for (int ch = 0; ch < 3; ++ch)
+                EXPECT_NEAR(block_mean(r.image, 16 * qx + 5, 16 * qy + 5, 6, 6, ch), (texel[qy][qx] * factor)[ch], 1e-4)
+                    << "quadrant " << qx << "," << qy << " channel " << ch;
+}
+
+TEST(Gltf, AlphaMaskCutsTheSurfaceOut) {
+    // alphaMode MASK: alpha = baseColorTexture.a × baseColorFactor[3] = (1, 0) × 0.8 for the
+    // two texels of alpha_half.png (nearest filter), cutoff 0.3: the left half of the quad is
+    // there, the right half is not. No lights: the default constant environment of radiance 1
+    // fills the right half of the view exactly; the left half shows the quad lit by it: the
+    // albedo of gltf_pbr with the texel's base colour, sRGB 188 = 0.503 (the factor's alpha
+    // does not tint it), as in BaseColourTextureRendersInTheRightQuadrants.
+    GltfTemp tmp;
+    json doc = lit_textured_doc(tmp, 45.0);
+    doc.erase("extensions");
+    doc.erase("extensionsUsed");
+    doc["nodes"].erase(2);
+    doc["scenes"][0]["nodes"] = {0, 1};
+    doc["images"].push_back({{"uri", "alpha_half.png"}});
+    doc["textures"].push_back({{"source", 2}, {"sampler", 0}});
+    json &m = doc["materials"][0];
+    m["pbrMetallicRoughness"]["baseColorTexture"] = {{"index", 2}};
+    m["pbrMetallicRoughness"]["baseColorFactor"] = {1.0, 1.0, 1.0, 0.8};
+    m["alphaMode"] = "MASK";
+    m["alphaCutoff"] = 0.3;
+    const std::string p = tmp.write("mask.gltf", doc.dump());
+    testing::internal::CaptureStderr();
+    json j = gltf_scene_to_json(p);
+    testing::internal::GetCapturedStderr();
+    EXPECT_EQ(j["shapes"][0]["alpha"], "checker_alpha");
+    EXPECT_NEAR(j["shapes"][0]["alpha_cutoff"].get<double>(), 0.3, 1e-12);
+    const json &a = j["textures"]["checker_alpha"];
+    EXPECT_EQ(a["filename"], "alpha_half.png");
+    EXPECT_EQ(a["channel"], "a");
+    EXPECT_EQ(a["raw"], true);
+    EXPECT_NEAR(a["scale"].get<double>(), 0.8, 1e-12);
+
+    testing::internal::CaptureStderr();
+    auto s = load_scene(p, {"camera.width=32", "camera.height=32"});
+    testing::internal::GetCapturedStderr();
+    s->build();
+    RenderResult r = test::render_scene(*s, 16);
+    const Spectrum want = diffuse_pbr_albedo(Spectrum(0.50289f));
+    for (int ch = 0; ch < 3; ++ch) {
+        EXPECT_NEAR(block_mean(r.image, 2, 2, 12, 28, ch), want[ch], 0.02) << "channel " << ch;  // the quad
+        EXPECT_NEAR(block_mean(r.image, 18, 2, 12, 28, ch), 1.0, 1e-5) << "channel " << ch;      // through it
+    }
+
+    // BLEND is MASK at 0.5, with a warning naming the material.
+    m["alphaMode"] = "BLEND";
+    testing::internal::CaptureStderr();
+    json jb = gltf_scene_to_json(tmp.write("blend.gltf", doc.dump()));
+    const std::string err = testing::internal::GetCapturedStderr();
+    EXPECT_EQ(jb["shapes"][0]["alpha_cutoff"], 0.5);
+    EXPECT_NE(err.find("material 'checker': alphaMode BLEND is rendered as MASK with alphaCutoff 0.5"), std::string::npos)
+        << err;
 }

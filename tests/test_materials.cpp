@@ -194,6 +194,8 @@ std::vector<Case> battery_cases() {
     add("normalmap_diffuse_slope", R"({"type":"normalmap","mean_slope":[0.4,-0.3],"bsdf":{"type":"diffuse","reflectance":0.8}})").jacobian = true;
     add("normalmap_smooth_conductor", R"({"type":"normalmap","mean_slope":[0.2,0],"bsdf":{"type":"conductor"}})");
     add("normalmap_lean", R"({"type":"normalmap","normal":[-0.2,0.2,1],"bsdf":{"type":"lean","covariance":[0.05,0.02,0.01]}})").jacobian = true;
+    // glTF normalTexture.scale: the constant normal's tilt scaled by 2.5 (n' = (0.5, -0.25, 1)/|.|)
+    add("normalmap_scaled_gltf_pbr", R"({"type":"normalmap","normal":[0.2,-0.1,1],"scale":2.5,"bsdf":{"type":"gltf_pbr","base_color":[0.8,0.6,0.4],"metallic":0.3,"roughness":0.5}})");  // (a lobe mixture: no Jacobian check, as for gltf_pbr)
     {
         Case &d = add("normalmap_flat_diffuse", R"({"type":"normalmap","normal":[0,0,1],"bsdf":{"type":"diffuse","reflectance":1}})");
         d.lossless = d.jacobian = d.pdf_complete = true;

@@ -162,7 +162,7 @@ TEST(SceneParser, WrongValueType) {
     std::string t = dir.write("t5.json", scene_with(R"("sampler": {"type": "independent", "sample_count": 2.5})"));
     EXPECT_EQ(load_error(t), t + ": sampler.sample_count: expected an integer, got a number");
     std::string u = dir.write("t6.json", scene_with(R"("sampler": {"type": "independent", "sample_count": 0})"));
-    EXPECT_EQ(load_error(u), u + ": sampler.sample_count: expected a positive integer, got 0");
+    EXPECT_EQ(load_error(u), u + ": sampler.sample_count: expected an integer at least 1, got 0");
 }
 
 TEST(SceneParser, UnknownParameter) {

@@ -142,6 +142,44 @@ TEST(TextureBitmap, NearestAndBilinearExact) {
               "scene.json: textures.tex.offset: expected [u, v], each finite with |value| <= 1e6");
 }
 
+TEST(TextureBitmap, RotationIsKhrTextureTransform) {
+    // KHR_texture_transform: uv' = T R S uv, R = [[cos r, sin r], [−sin r, cos r]]. A rotated,
+    // tiled, offset lookup at uv equals the untransformed lookup at uv', and a trilinear/EWA
+    // footprint (du/dx, dv/dx), (du/dy, dv/dy) maps through the same linear part R S.
+    write_4x4();
+    const double r = 0.7, tu = 2.0, tv = 0.5, ou = 0.125, ov = -0.25, c = std::cos(r), sn = std::sin(r);
+    for (const char *filter : {"nearest", "bilinear", "trilinear", "ewa"}) {
+        SCOPED_TRACE(filter);
+        auto plain = make_texture({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"filter_type", filter}});
+        auto moved = make_texture({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"filter_type", filter},
+                                   {"tiling", {tu, tv}}, {"rotation", r}, {"offset", {ou, ov}}});
+        PCG32 rng(5);
+        for (int i = 0; i < 50; ++i) {
+            const double u = rng.next_float(), v = rng.next_float();
+            const double fx[2] = {0.2 * rng.next_float(), 0.2 * rng.next_float()};  // (du/dx, dv/dx)
+            const double fy[2] = {0.05 * rng.next_float(), 0.05 * rng.next_float()};  // (du/dy, dv/dy)
+            auto map = [&](double a, double b, double *out) {  // the linear part R S
+                out[0] = c * tu * a + sn * tv * b;
+                out[1] = -sn * tu * a + c * tv * b;
+            };
+            double p[2], dx[2], dy[2];
+            map(u, v, p);
+            map(fx[0], fx[1], dx);
+            map(fy[0], fy[1], dy);
+            const Spectrum got = moved->eval(at(u, v, fx[0], fy[0], fx[1], fy[1]));
+            const Spectrum want = plain->eval(at(p[0] + ou, p[1] + ov, dx[0], dy[0], dx[1], dy[1]));
+            EXPECT_NEAR(got.r, want.r, 1e-3 * (1 + std::abs(want.r))) << "uv " << u << ", " << v;
+        }
+    }
+    // rotation 0 is the plain tiling; a quarter turn maps (u, v) to (v, −u): on the grid,
+    // texel (x, y) = 10 y + x at uv (0.375, 0.125) is read at (0.125, −0.375) → texel (0, 2) with repeat.
+    auto quarter = make_texture({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"filter_type", "nearest"},
+                                 {"rotation", Pi / 2}});
+    EXPECT_FLOAT_EQ(quarter->eval(at(0.375f, 0.125f)).r, 20.f);
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "grid4.exr"}, {"rotation", 1e7}}),
+              "scene.json: textures.tex.rotation: expected a number in [-1e+06, 1e+06], got 1e+07");
+}
+
 TEST(TextureBitmap, WrapModes) {
     write_4x4();
     auto make = [](const char *wrap, const char *filter) {
@@ -197,6 +235,18 @@ TEST(TextureBitmap, ChannelSelectsOneChannelAsGrey) {
               "scene.json: textures.tex.channel: " + tmp_dir() + "/orm.png: the image has 3 channel(s), no alpha");
     EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", "orm.png"}, {"channel", "x"}}),
               "scene.json: textures.tex.channel: expected \"rgb\", \"r\", \"g\", \"b\" or \"a\", got \"x\"");
+}
+
+TEST(TextureBitmap, AlphaIsNotMultipliedIntoColour) {
+    // scenes/tests/alpha_half.png: two sRGB-188 grey texels with alpha 255 and 0 (PNG stores
+    // colour unassociated). The colour is read as stored whatever the alpha (OpenImageIO would
+    // premultiply it: 0 for the transparent texel); channel "a" reads the alpha, linear.
+    const std::string file = std::string(MESO_SOURCE_DIR) + "/scenes/tests/alpha_half.png";
+    auto rgb = make_texture({{"type", "bitmap"}, {"filename", file}, {"filter_type", "nearest"}, {"raw", true}});
+    auto a = make_texture({{"type", "bitmap"}, {"filename", file}, {"filter_type", "nearest"}, {"channel", "a"}});
+    for (float u : {0.25f, 0.75f}) EXPECT_NEAR(rgb->eval(at(u, 0.5f)).g, 188 / 255.0, 1e-5) << u;
+    EXPECT_NEAR(a->eval_float(at(0.25f, 0.5f)), 1.0, 1e-6);
+    EXPECT_NEAR(a->eval_float(at(0.75f, 0.5f)), 0.0, 1e-6);
 }
 
 TEST(TextureBitmap, MissingAndMalformedFiles) {

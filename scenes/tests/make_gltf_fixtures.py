@@ -18,6 +18,8 @@
                         bufferView images
   normal_up.png         a 1x1 tangent-space normal map tilted towards +y (test of the
                         normal-map direction in tests/test_gltf.cpp)
+  alpha_half.png        a 2x1 RGBA image: left texel sRGB 188 grey with alpha 255, right
+                        texel the same grey with alpha 0 (alphaMode MASK tests)
 """
 import base64, json, os, struct, zlib
 
@@ -114,13 +116,15 @@ def mixed():
 
 
 def png(w, h, rows):
-    """An 8-bit RGB PNG; rows: h lists of w (r, g, b)."""
+    """An 8-bit RGB PNG; rows: h lists of w (r, g, b), or of (r, g, b, a) for RGBA (not
+    premultiplied, as PNG stores it)."""
     raw = b"".join(b"\0" + bytes(c for px in row for c in px) for row in rows)
+    colour_type = 6 if len(rows[0][0]) == 4 else 2
 
     def chunk(tag, body):
         return struct.pack(">I", len(body)) + tag + body + struct.pack(">I", zlib.crc32(tag + body) & 0xFFFFFFFF)
 
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)) +
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, colour_type, 0, 0, 0)) +
             chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
 
 
@@ -129,6 +133,7 @@ MR = png(1, 1, [[(0, 255, 0)]])
 # A constant tangent-space normal tilted towards +y (glTF: green = +y = the bitangent,
 # towards decreasing v): (128, 220, 255) -> (0.004, 0.725, 1), normalised (0.003, 0.587, 0.810).
 NORMAL_UP = png(1, 1, [[(128, 220, 255)]])
+ALPHA_HALF = png(2, 1, [[(188, 188, 188, 255), (188, 188, 188, 0)]])
 
 
 def textured(embed):
@@ -184,7 +189,8 @@ if __name__ == "__main__":
     write_glb("quad.glb", g, d)
     g, d = mixed()
     write_gltf("mixed.gltf", g, d)
-    for name, blob in (("checker.png", CHECKER), ("mr.png", MR), ("normal_up.png", NORMAL_UP)):
+    for name, blob in (("checker.png", CHECKER), ("mr.png", MR), ("normal_up.png", NORMAL_UP),
+                       ("alpha_half.png", ALPHA_HALF)):
         with open(os.path.join(HERE, name), "wb") as f:
             f.write(blob)
     g, d = textured(False)

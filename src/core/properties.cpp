@@ -162,10 +162,10 @@ std::string Range::text() const {
 }
 
 namespace {
-std::string range_error(const Range &r, double v, int index) {
+std::string range_error(const Range &r, double v, int index, const char *noun = "a number") {
     std::string where = index >= 0 ? fmt::format(" at index {}", index) : std::string();
-    if (r.hi >= 3.4e38 || r.lo <= -3.4e38) return fmt::format("expected a number {}, got {:g}{}", r.text(), v, where);
-    return fmt::format("expected a number in {}, got {:g}{}", r.text(), v, where);
+    if (r.hi >= 3.4e38 || r.lo <= -3.4e38) return fmt::format("expected {} {}, got {:g}{}", noun, r.text(), v, where);
+    return fmt::format("expected {} in {}, got {:g}{}", noun, r.text(), v, where);
 }
 }  // namespace
 
@@ -178,7 +178,7 @@ float Properties::get_float(const std::string &key, float def, Range r) const { 
 
 int Properties::get_int(const std::string &key, Range r) const {
     const int i = get_int(key);
-    if (!r.contains(i)) fail(key, range_error(r, i, -1));
+    if (!r.contains(i)) fail(key, range_error(r, i, -1, "an integer"));
     return i;
 }
 int Properties::get_int(const std::string &key, int def, Range r) const { return has(key) ? get_int(key, r) : def; }

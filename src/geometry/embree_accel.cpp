@@ -32,8 +32,29 @@ EmbreeAccel::~EmbreeAccel() {
     if (m_device) rtcReleaseDevice(m_device);
 }
 
+/// Intersection and occlusion filter of shapes with an alpha mask: a candidate hit where the
+/// mask cuts the surface out is rejected (valid = 0), so Embree goes on to the next surface
+/// along the ray. Shapes without a mask get no filter and pay nothing.
+static void alpha_mask_filter(const RTCFilterFunctionNArguments *args) {
+    const Shape *shape = static_cast<const Shape *>(args->geometryUserPtr);
+    for (unsigned i = 0; i < args->N; ++i) {
+        if (args->valid[i] != -1) continue;
+        const uint32_t prim = RTCHitN_primID(args->hit, args->N, i);
+        if (shape->cut_out(prim, RTCHitN_u(args->hit, args->N, i), RTCHitN_v(args->hit, args->N, i)))
+            args->valid[i] = 0;
+    }
+}
+
 void EmbreeAccel::add(const Shape *shape) {
+    if (shape->alpha_mask && !rtcGetDeviceProperty(m_device, RTC_DEVICE_PROPERTY_FILTER_FUNCTION_SUPPORTED))
+        throw MesoError(fmt::format("{}: this Embree build has no filter functions, which alpha masks need",
+                                    shape->to_string()));
     RTCGeometry g = shape->build_embree(m_device);
+    if (shape->alpha_mask) {
+        rtcSetGeometryUserData(g, const_cast<Shape *>(shape));
+        rtcSetGeometryIntersectFilterFunction(g, alpha_mask_filter);
+        rtcSetGeometryOccludedFilterFunction(g, alpha_mask_filter);
+    }
     // LoD level k of a chain is seen only by rays with mask bit k, its last level also by
     // rays of every higher level (a path at level 3 still sees a 2-level chain's coarsest
     // model); other shapes by all rays.

@@ -130,6 +130,16 @@ void MeshShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float b
     }
 }
 
+Vec2 MeshShape::uv_at(uint32_t prim, float bu, float bv) const {
+    // As fill_interaction: the vertex uvs, or (0, 0), (1, 0), (1, 1) without them.
+    if (!m_has_uvs) return Vec2(bu + bv, bv);
+    const float *v0 = &m_vertices[m_mesh.indices[3 * prim] * Stride + 6];
+    const float *v1 = &m_vertices[m_mesh.indices[3 * prim + 1] * Stride + 6];
+    const float *v2 = &m_vertices[m_mesh.indices[3 * prim + 2] * Stride + 6];
+    const float b0 = 1.f - bu - bv;
+    return Vec2(v0[0] * b0 + v1[0] * bu + v2[0] * bv, v0[1] * b0 + v1[1] * bu + v2[1] * bv);
+}
+
 PositionSample MeshShape::sample_area(float u_prim, Vec2 u) const {
     PositionSample ps;
     size_t tri = m_area_distr.sample_discrete(u_prim);

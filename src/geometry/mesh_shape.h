@@ -20,6 +20,7 @@ public:
     size_t memory_bytes() const override;
     std::string to_string() const override;
     const TriangleMesh *mesh() const override { return &m_mesh; }
+    Vec2 uv_at(uint32_t prim, float u, float v) const override;
 
 private:
     TriangleMesh m_mesh;

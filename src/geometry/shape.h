@@ -1,6 +1,7 @@
 // Shapes: geometry + material + optional area emitter. Triangle meshes (rectangle, cube,
 // disk, glTF meshes) and analytic spheres (Embree sphere primitives, exact normals).
 #pragma once
+#include <functional>
 #include <memory>
 #include <string>
 #include <embree3/rtcore.h>
@@ -18,6 +19,16 @@ struct PositionSample {
     Vec2 uv;
     float pdf_area = 0.f;  ///< density w.r.t. surface area
     uint32_t prim = 0;
+};
+
+/// A cut-out (glTF alphaMode MASK): where alpha(uv) < cutoff the surface is not there, for
+/// every ray (camera, bounce, shadow; Embree filter functions in embree_accel.cpp) and for
+/// an area emitter's light samples. alpha is a callback because the texture layer sits above
+/// geometry (docs/architecture.md): the scene loader, which may include both, installs one
+/// that evaluates a texture at uv (no footprint: level 0 of its MIP map).
+struct AlphaMask {
+    std::function<float(Vec2 uv)> alpha;
+    float cutoff = 0.5f;
 };
 
 class Shape {
@@ -44,9 +55,21 @@ public:
         const TriangleMesh *m = mesh();
         return m && m->uv_world_length(lu, lv);
     }
+    /// Texture coordinates at Embree's barycentrics (u, v) of primitive `prim`, as
+    /// fill_interaction computes them (alpha masks and textured emitters read them without a
+    /// full interaction). Shapes that cannot carry an alpha mask (mesh() is null) return (u, v).
+    virtual Vec2 uv_at(uint32_t prim, float u, float v) const {
+        (void)prim;
+        return Vec2(u, v);
+    }
+    /// True where the alpha mask removes the surface (never without a mask).
+    bool cut_out(uint32_t prim, float u, float v) const {
+        return alpha_mask && alpha_mask->alpha(uv_at(prim, u, v)) < alpha_mask->cutoff;
+    }
 
     std::shared_ptr<Material> material;
     std::shared_ptr<Light> emitter;  ///< area light, or null
+    std::shared_ptr<const AlphaMask> alpha_mask;  ///< cut-out, or null (set before Scene::build)
     /// LoD chain this shape is level `lod_level` of (null: no LoD; seen by every ray).
     std::shared_ptr<const LodGroup> lod;
     int lod_level = 0;

@@ -26,6 +26,9 @@ struct Image {
 /// encoded files (PNG/JPEG colour textures) to linear; float formats are taken as linear.
 /// Throws MesoError("<path>: cannot read image: <reason>") on failure.
 Image read_image(const std::string &path, bool linearize_srgb = false);
+/// The number of channels an image file declares (header only), 0 when it cannot be opened
+/// (read_image then says why).
+int image_channel_count(const std::string &path);
 /// Throws MesoError naming the file when it is an EXR with a corrupt header (an attribute claiming
 /// more bytes than the file has, which OpenEXR would allocate); other files pass. read_image calls it.
 void check_exr_headers(const std::string &path);

@@ -3,7 +3,10 @@
 // Reading: any format OpenImageIO knows, converted to 32-bit float, all channels kept.
 // 8/16-bit integer files are sRGB-encoded by convention (PNG, JPEG, TIFF colour
 // textures); with linearize_srgb they are decoded to linear unless the file itself says
-// it is linear (oiio:ColorSpace "Linear"). Alpha is never decoded.
+// it is linear (oiio:ColorSpace "Linear"). Alpha is never decoded, and colour channels are
+// read as stored: OpenImageIO would otherwise multiply a PNG's RGB by its alpha
+// ("associate" it), darkening semi-transparent texels of colour textures whose alpha means
+// coverage (glTF base colours are not premultiplied; a `bitmap` ignores alpha).
 // Writing: EXR as full 32-bit float (half would clip above 65504 and quantise dark
 // values: openexr #237); PNG as 8-bit sRGB. Both write "<path>.tmp-<pid>" first and
 // rename it into place, so a failed write never leaves a partial file under <path>.
@@ -236,7 +239,9 @@ Image read_image(const std::string &path, bool linearize_srgb) {
     if (fs::is_directory(path, ec)) read_error(path, "it is a directory");
     if (std::string why = input_file_problem(path, kMaxImageFileBytes, "image"); !why.empty()) read_error(path, why);
     check_exr_headers(path);
-    auto in = ImageInput::open(path);
+    ImageSpec config;
+    config.attribute("oiio:UnassociatedAlpha", 1);
+    auto in = ImageInput::open(path, &config);
     if (!in) read_error(path, trimmed(OIIO::geterror(), "unknown format"));
     const ImageSpec &spec = in->spec();
     if (spec.width <= 0 || spec.height <= 0 || spec.nchannels <= 0 || spec.depth > 1)
@@ -265,6 +270,22 @@ Image read_image(const std::string &path, bool linearize_srgb) {
         }
     }
     return img;
+}
+
+int image_channel_count(const std::string &path) {
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec) || !input_file_problem(path, kMaxImageFileBytes, "image").empty()) return 0;
+    try {
+        check_exr_headers(path);
+    } catch (const MesoError &) {
+        return 0;
+    }
+    auto in = ImageInput::open(path);
+    if (!in) {
+        (void)OIIO::geterror();  // clear it: read_image reports the problem when the image is read
+        return 0;
+    }
+    return std::max(in->spec().nchannels, 0);
 }
 
 ImageMetadata read_image_metadata(const std::string &path) {

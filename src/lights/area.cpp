@@ -1,10 +1,17 @@
 // `area` light: a diffuse emitter attached to a shape (the scene loader calls set_shape()).
 //
-// Model: constant radiance L leaving the surface on the side of its geometric normal
-// (both sides when two_sided). For triangle meshes the geometric normal is the
+// Model: radiance L leaving the surface on the side of its geometric normal (both sides
+// when two_sided). L is a constant, or a texture evaluated at the uv of the point on the
+// emitter (glTF emissiveTexture): at a ray's hit (eval, LightHit::uv) and at a light sample
+// (the sampled point's barycentrics through Shape::uv_at), without a footprint (level 0 of
+// a MIP map: the pixel's samples do the filtering), negative values clamped to 0. The
+// sampling densities below do not depend on L, so MIS weights are the same as for a
+// constant emitter (the texture only adds variance). A constant costs no texture lookup. On
+// a shape with an alpha mask, points the mask cuts out emit nothing (their light samples
+// return false; rays pass through them, so eval never sees them). For triangle meshes the geometric normal is the
 // counter-clockwise one, cross(p1 - p0, p2 - p0), flipped to the side of the interpolated
 // vertex normal when the mesh has normals — the same rule the mesh shape uses for si.ng.
-// Power: pi · area · mean(L) (× 2 when two-sided).
+// Power: pi · area · mean(L) (× 2 when two-sided; a texture's mean over its uv square).
 //
 // Sampling (pbrt-v4 Triangle::Sample / DiffuseAreaLight, Mitsuba 3 `area`):
 //   * triangle meshes: a triangle is chosen with probability area_t / area (Distribution1D),
@@ -28,10 +35,12 @@
 // a one-sided emitter) or the configuration is degenerate (pdf not finite).
 //
 // Parameters (Mitsuba 3 names where they exist):
-//   radiance    spectrum  default 1               emitted radiance, >= 0
+//   radiance    spectrum  default 1               emitted radiance, >= 0; or a texture (inline
+//                                                 object or a declared name): radiance at the uv
 //   two_sided   bool      default false           emit on both sides
 //   sampling    string    default "solid_angle"   "solid_angle" or "area"
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 #include <vector>
 #include "core/error.h"
 #include "geometry/shape.h"
@@ -41,6 +50,7 @@
 #include "sampling/warp.h"
 #include "core/properties.h"
 #include "core/registry.h"
+#include "texture/texture.h"
 
 namespace meso {
 namespace {
@@ -50,8 +60,9 @@ constexpr double MaxSphericalSampleArea = 6.22;  // sr
 
 class AreaLight final : public Light {
 public:
-    AreaLight(Spectrum L, bool two_sided, bool solid_angle)
-        : m_radiance(L), m_two_sided(two_sided), m_solid_angle(solid_angle) {}
+    /// `texture` null: the constant radiance L.
+    AreaLight(Spectrum L, std::shared_ptr<const Texture> texture, bool two_sided, bool solid_angle)
+        : m_radiance(L), m_texture(std::move(texture)), m_two_sided(two_sided), m_solid_angle(solid_angle) {}
 
     void set_shape(const Shape *shape) override {
         m_shape = shape;
@@ -74,6 +85,7 @@ public:
         if (!m_shape || !(m_area > 0.f)) return false;
         float d2;
         Vec3 p, n;
+        Vec2 uv;  // read only by textures and alpha masks
         float pdf;
         if (m_mesh) {
             float pmf, ux;
@@ -93,12 +105,14 @@ public:
             }
             p = p0 * float(b[0]) + p1 * float(b[1]) + p2 * float(b[2]);
             n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
+            if (m_texture || m_shape->alpha_mask) uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
             if (!towards(ctx, p, out, d2)) return false;
             pdf = density(ctx, t, p0, p1, p2, spherical, n, out.wi, d2, pmf);
         } else {
             PositionSample ps = m_shape->sample_area(u.x, u);
             p = ps.p;
             n = ps.n;
+            uv = ps.uv;
             if (!towards(ctx, p, out, d2)) return false;
             float cos_l = absdot(n, out.wi);
             pdf = cos_l > 0.f ? d2 / (cos_l * m_area) : 0.f;
@@ -106,7 +120,10 @@ public:
         if (!(pdf > 0.f) || !std::isfinite(pdf)) return false;
         out.pdf = pdf;
         out.delta = false;
-        out.L = emitted(n, -out.wi);
+        if (!faces(n, -out.wi)) return false;
+        const AlphaMask *mask = m_shape->alpha_mask.get();
+        if (mask && mask->alpha(uv) < mask->cutoff) return false;  // cut out: not part of the emitter
+        out.L = m_texture ? textured(p, n, uv) : m_radiance;
         return !out.L.is_black();
     }
 
@@ -132,18 +149,35 @@ public:
         return std::isfinite(pdf) ? pdf : 0.f;
     }
 
-    Spectrum eval(const LightHit &hit, const Vec3 &w) const override { return emitted(hit.n, w); }
-    float power() const override { return Pi * m_area * m_radiance.average() * (m_two_sided ? 2.f : 1.f); }
+    Spectrum eval(const LightHit &hit, const Vec3 &w) const override {
+        if (!faces(hit.n, w)) return Spectrum(0.f);
+        return m_texture ? textured(hit.p, hit.n, hit.uv) : m_radiance;
+    }
+    float power() const override {
+        const float mean = m_texture ? std::max(m_texture->mean().average(), 0.f) : m_radiance.average();
+        return Pi * m_area * mean * (m_two_sided ? 2.f : 1.f);
+    }
     std::string to_string() const override {
-        return fmt::format("area light, radiance [{}, {}, {}]{}, {} sampling, area {:.4g}, {} triangles{}",
-                           m_radiance.r, m_radiance.g, m_radiance.b, m_two_sided ? ", two-sided" : "",
+        const std::string L = m_texture ? "radiance " + m_texture->to_string()
+                                        : fmt::format("radiance [{}, {}, {}]", m_radiance.r, m_radiance.g, m_radiance.b);
+        return fmt::format("area light, {}{}, {} sampling, area {:.4g}, {} triangles{}", L,
+                           m_two_sided ? ", two-sided" : "",
                            m_mesh ? (m_solid_angle ? "solid-angle" : "area") : "area", m_area,
                            m_mesh ? m_mesh->triangle_count() : 0, m_shape ? "" : " (no shape bound)");
     }
 
 private:
-    Spectrum emitted(Vec3 n, Vec3 w) const {
-        return (m_two_sided || dot(n, w) > 0.f) ? m_radiance : Spectrum(0.f);
+    /// Whether the side of normal n that w points to emits.
+    bool faces(Vec3 n, Vec3 w) const { return m_two_sided || dot(n, w) > 0.f; }
+    /// The radiance texture at a point of the emitter (no footprint), negative values as 0.
+    Spectrum textured(Vec3 p, Vec3 n, Vec2 uv) const {
+        ShadingContext ctx;
+        ctx.p = p;
+        ctx.uv = uv;
+        ctx.ng = n;
+        ctx.frame = Frame(n);
+        const Spectrum L = m_texture->eval(ctx);
+        return Spectrum(std::max(L.r, 0.f), std::max(L.g, 0.f), std::max(L.b, 0.f));
     }
     void triangle(size_t t, Vec3 &p0, Vec3 &p1, Vec3 &p2) const {
         const uint32_t *idx = &m_mesh->indices[3 * t];
@@ -205,6 +239,7 @@ private:
     }
 
     Spectrum m_radiance;
+    std::shared_ptr<const Texture> m_texture;  ///< null: the constant m_radiance
     bool m_two_sided, m_solid_angle;
     const Shape *m_shape = nullptr;
     const TriangleMesh *m_mesh = nullptr;
@@ -214,13 +249,29 @@ private:
     float m_area = 0.f;
 };
 
-MESO_REGISTER_LIGHT("area", "diffuse area emitter on a shape (radiance, two_sided, sampling)",
+MESO_REGISTER_LIGHT("area", "diffuse area emitter on a shape (radiance: constant or texture, two_sided, sampling)",
                     [](const Properties &p) -> std::shared_ptr<Light> {
-                        Spectrum L = p.get_spectrum("radiance", Spectrum(1.f), Range::non_negative());
+                        // A number or [r, g, b] is the constant (range-checked); an object or a
+                        // name is a texture (a constant one is taken as its value).
+                        Spectrum L(1.f);
+                        std::shared_ptr<const Texture> texture;
+                        const bool textured =
+                            p.has("radiance") && (p.raw("radiance").is_object() || p.raw("radiance").is_string());
+                        if (textured) {
+                            texture = p.get_texture("radiance");
+                            if (texture->is_constant()) {
+                                L = texture->mean();
+                                texture = nullptr;
+                                if (!(L.r >= 0.f && L.g >= 0.f && L.b >= 0.f))
+                                    p.fail("radiance", "expected a radiance >= 0");
+                            }
+                        } else {
+                            L = p.get_spectrum("radiance", Spectrum(1.f), Range::non_negative());
+                        }
                         bool two_sided = p.get_bool("two_sided", false);
                         const bool solid_angle =
                             p.get_enum<bool>("sampling", "solid_angle", {{"solid_angle", true}, {"area", false}});
-                        return std::make_shared<AreaLight>(L, two_sided, solid_angle);
+                        return std::make_shared<AreaLight>(L, std::move(texture), two_sided, solid_angle);
                     });
 
 }  // namespace

@@ -30,6 +30,7 @@ struct LightHit {
     Vec3 p;          ///< hit point on the emitter
     Vec3 n;          ///< geometric normal at the hit point
     uint32_t prim = 0;  ///< primitive (triangle) index within the shape
+    Vec2 uv{};          ///< texture coordinates of the hit (textured emitters read them)
 };
 
 class Light {

@@ -20,6 +20,7 @@
 #include "core/error.h"
 #include "core/input_file.h"
 #include "core/registry.h"
+#include "image/image.h"
 
 namespace meso {
 
@@ -567,8 +568,9 @@ std::string image_file(const std::string &path, const tinygltf::Model &model, in
     return out.string();
 }
 
-/// KHR_texture_transform → the bitmap's `tiling` (scale) and `offset`; rotation and a
-/// texCoord override are not supported (warning).
+/// KHR_texture_transform → the bitmap's `tiling` (scale), `rotation` and `offset` (the bitmap
+/// applies them in the extension's order, uv' = T R S uv); a texCoord override is not
+/// supported (warning).
 void texture_transform(const std::string &path, const tinygltf::Value &v, const std::string &mat, const char *what, json &j) {
     auto pair = [&](const char *key, double def, double out[2]) {
         out[0] = out[1] = def;
@@ -589,8 +591,15 @@ void texture_transform(const std::string &path, const tinygltf::Value &v, const 
     else if (scale[0] != 1.0 || scale[1] != 1.0)
         j["tiling"] = json::array({scale[0], scale[1]});
     if (offset[0] != 0.0 || offset[1] != 0.0) j["offset"] = json::array({offset[0], offset[1]});
-    if (v.Has("rotation") && v.Get("rotation").IsNumber() && v.Get("rotation").GetNumberAsDouble() != 0.0)
-        warn(path, fmt::format("material '{}': {}: KHR_texture_transform rotation is not supported; ignored", mat, what));
+    if (v.Has("rotation")) {
+        const tinygltf::Value &r = v.Get("rotation");
+        const double rot = r.IsNumber() ? r.GetNumberAsDouble() : std::nan("");
+        if (!(std::abs(rot) <= 1e6))
+            warn(path, fmt::format("material '{}': {}: KHR_texture_transform.rotation is not a number in [-1e6, 1e6]; "
+                                   "ignored", mat, what));
+        else if (rot != 0.0)
+            j["rotation"] = rot;
+    }
     if (v.Has("texCoord"))
         warn(path, fmt::format("material '{}': {}: KHR_texture_transform texCoord is not supported; ignored", mat, what));
 }
@@ -639,9 +648,47 @@ json scaled(json tex, json factor) {
     return {{"type", "combine"}, {"op", "product"}, {"terms", json::array({{{"texture", tex}}, {{"texture", factor}}})}};
 }
 
+/// Whether a bitmap's image file (relative to the glTF file) has an alpha channel.
+bool image_has_alpha(const std::string &path, const std::string &file) {
+    fs::path f(file);
+    if (f.is_relative()) f = fs::path(path).parent_path() / f;
+    const int channels = image_channel_count(f.string());
+    return channels == 2 || channels == 4;  // grey + alpha, RGBA (the bitmap's "a" channel)
+}
+
+/// The shape keys "alpha" and "alpha_cutoff" (docs/scene-format.md, "Shapes") of a material
+/// with alphaMode MASK, or BLEND (rendered as MASK at 0.5, with a warning): the alpha of
+/// `base_tex` (its "a" channel, raw: glTF alpha is linear) × baseColorFactor[3], or the factor
+/// alone when there is no texture or it has no alpha channel. Null for OPAQUE.
+json alpha_keys(const std::string &path, const tinygltf::Material &m, const json &base_tex) {
+    if (m.alphaMode == "OPAQUE" || m.alphaMode.empty()) return json();
+    double cutoff = m.alphaCutoff;
+    if (m.alphaMode == "BLEND") {
+        warn(path, fmt::format("material '{}': alphaMode BLEND is rendered as MASK with alphaCutoff 0.5 (meso does "
+                               "not blend)", m.name));
+        cutoff = 0.5;
+    } else if (m.alphaMode != "MASK") {
+        warn(path, fmt::format("material '{}': unknown alphaMode '{}'; rendered opaque", m.name, m.alphaMode));
+        return json();
+    } else if (!(cutoff >= 0.0 && cutoff <= 1.0)) {
+        warn(path, fmt::format("material '{}': alphaCutoff {} is outside [0, 1]; 0.5 is used", m.name, cutoff));
+        cutoff = 0.5;
+    }
+    const auto &f = m.pbrMetallicRoughness.baseColorFactor;
+    const double factor = f.size() >= 4 && std::isfinite(f[3]) ? std::min(std::max(f[3], 0.0), 1.0) : 1.0;
+    json alpha = factor;
+    if (!base_tex.is_null() && image_has_alpha(path, base_tex["filename"])) {
+        json a = base_tex;
+        a["raw"] = true;
+        a["channel"] = "a";
+        alpha = scaled(a, factor);
+    }
+    return {{"alpha", alpha}, {"alpha_cutoff", cutoff}};
+}
+
 /// glTF metallic-roughness → meso `gltf_pbr` (docs/scene-format.md, "Materials"), wrapped in
-/// `normalmap` when the material has a normal texture.
-json map_material(const std::string &path, const tinygltf::Model &model, const tinygltf::Material &m) {
+/// `normalmap` when the material has a normal texture; `*alpha` receives alpha_keys().
+json map_material(const std::string &path, const tinygltf::Model &model, const tinygltf::Material &m, json *alpha) {
     const auto &pbr = m.pbrMetallicRoughness;
     Vec3 base(1, 1, 1);
     if (pbr.baseColorFactor.size() >= 3) base = Vec3(float(pbr.baseColorFactor[0]), float(pbr.baseColorFactor[1]), float(pbr.baseColorFactor[2]));
@@ -651,17 +698,15 @@ json map_material(const std::string &path, const tinygltf::Model &model, const t
     for (const auto &e : m.extensions)
         if (e.first != "KHR_materials_emissive_strength")
             warn(path, fmt::format("material '{}': extension {} is not supported; ignored", m.name, e.first));
-    if (m.emissiveTexture.index >= 0)
-        warn(path, fmt::format("material '{}': emissiveTexture is not supported (emissiveFactor only)", m.name));
     if (m.occlusionTexture.index >= 0)
         warn(path, fmt::format("material '{}': occlusionTexture is ignored (a path tracer computes occlusion)", m.name));
-    if (m.alphaMode != "OPAQUE" && !m.alphaMode.empty())
-        warn(path, fmt::format("material '{}': alphaMode {} is not supported; rendered opaque", m.name, m.alphaMode));
     json base_tex = texture_json(path, model, pbr.baseColorTexture.index, pbr.baseColorTexture.texCoord,
                                  pbr.baseColorTexture.extensions, m.name, "baseColorTexture", false, nullptr);
+    *alpha = alpha_keys(path, m, base_tex);
     const auto &mr = pbr.metallicRoughnessTexture;
     json metal_tex = texture_json(path, model, mr.index, mr.texCoord, mr.extensions, m.name, "metallicRoughnessTexture", true, "b");
-    json rough_tex = texture_json(path, model, mr.index, mr.texCoord, {}, m.name, "metallicRoughnessTexture", true, "g");
+    json rough_tex = metal_tex;  // the same texture (and KHR_texture_transform), read once, warned once
+    if (!rough_tex.is_null()) rough_tex["channel"] = "g";
     json mat = {{"type", "gltf_pbr"},
                 {"base_color", scaled(base_tex, vec3_json(base))},
                 {"metallic", scaled(metal_tex, metallic)},
@@ -669,10 +714,21 @@ json map_material(const std::string &path, const tinygltf::Model &model, const t
     const auto &nt = m.normalTexture;
     json normals = texture_json(path, model, nt.index, nt.texCoord, nt.extensions, m.name, "normalTexture", true, nullptr);
     if (normals.is_null()) return mat;
-    if (nt.scale != 1.0) warn(path, fmt::format("material '{}': normalTexture scale {} is ignored (1 is used)", m.name, nt.scale));
-    return {{"type", "normalmap"}, {"normals", normals["filename"]}, {"bsdf", mat}};
+    json wrapped = {{"type", "normalmap"}, {"normals", normals["filename"]}, {"bsdf", mat}};
+    if (normals.contains("tiling")) wrapped["tiling"] = normals["tiling"];  // normalmap repeats the image itself
+    if (normals.contains("offset") || normals.contains("rotation"))
+        warn(path, fmt::format("material '{}': normalTexture: KHR_texture_transform offset and rotation are not "
+                               "applied to normal maps (scale is)", m.name));
+    if (nt.scale != 1.0) {
+        if (std::isfinite(nt.scale) && std::abs(nt.scale) <= 1000.0)
+            wrapped["scale"] = nt.scale;
+        else
+            warn(path, fmt::format("material '{}': normalTexture scale {} is outside [-1000, 1000]; 1 is used", m.name, nt.scale));
+    }
+    return wrapped;
 }
 
+/// emissiveFactor × KHR_materials_emissive_strength (zero when not finite or negative).
 Vec3 emission(const tinygltf::Material &m) {
     if (m.emissiveFactor.size() < 3) return Vec3();
     double strength = 1.0;
@@ -766,37 +822,71 @@ json framing_camera(const std::vector<GltfPrimitive> &prims) {
     return framing_camera(bmin, bmax);
 }
 
-/// The scene's "shapes" (one `gltf` shape per primitive) and "materials" (one named meso
-/// material per glTF material that a primitive uses); emissive materials make area emitters.
+/// The scene's "shapes" (one `gltf` shape per primitive), "materials" (one named meso
+/// material per glTF material that a primitive uses) and "textures" (emission and alpha
+/// textures, declared once and named so that every shape of a material shares them);
+/// emissive materials make area emitters.
 struct GltfShapes {
     json materials = json::object();
+    json textures = json::object();
     json shapes = json::array();
     bool any_emitter = false;
 };
+
+/// What a glTF material gives its shapes: the meso material's name, an `area` emitter and
+/// the alpha-mask keys (each null when there is none).
+struct MappedMaterial {
+    std::string name;
+    json emitter, alpha;
+};
+
+/// Maps glTF material `index` into `out` (material, and named textures for a textured
+/// emission — emissiveFactor × strength × emissiveTexture (sRGB) — and a textured alpha).
+MappedMaterial map_material_for_shapes(const std::string &path, const tinygltf::Model &model, int index,
+                                       std::set<std::string> &used, GltfShapes &out) {
+    const tinygltf::Material &gm = model.materials[size_t(index)];
+    MappedMaterial mm;
+    mm.name = unique_name(gm.name, fmt::format("material_{}", index), used);
+    json alpha;
+    out.materials[mm.name] = map_material(path, model, gm, &alpha);
+    auto named = [&](json tex, const std::string &suffix) -> json {
+        if (!tex.is_object()) return tex;  // a constant stays inline
+        out.textures[mm.name + suffix] = std::move(tex);
+        return mm.name + suffix;  // material names are unique, so these are too
+    };
+    const Vec3 e = emission(gm);
+    if (max_component(e) > 0.f) {
+        const auto &et = gm.emissiveTexture;
+        json tex = texture_json(path, model, et.index, et.texCoord, et.extensions, gm.name, "emissiveTexture", false, nullptr);
+        mm.emitter = {{"type", "area"}, {"radiance", named(scaled(tex, vec3_json(e)), "_emission")}};
+    }
+    if (!alpha.is_null()) {
+        alpha["alpha"] = named(alpha["alpha"], "_alpha");
+        mm.alpha = std::move(alpha);
+    }
+    return mm;
+}
 
 GltfShapes primitive_shapes(const std::string &path, const tinygltf::Model &model,
                             const std::vector<GltfPrimitive> &prims) {
     GltfShapes out;
     const std::string file = fs::path(path).filename().string();
-    std::map<int, std::string> material_names;
+    std::map<int, MappedMaterial> mapped;
     std::set<std::string> used;
     for (size_t i = 0; i < prims.size(); ++i) {
         const GltfPrimitive &p = prims[i];
         json shape = {{"type", "gltf"}, {"filename", file}, {"primitive", i}};
         if (p.material >= 0) {
-            const tinygltf::Material &gm = model.materials[size_t(p.material)];
-            auto it = material_names.find(p.material);
-            if (it == material_names.end()) {
-                std::string name = unique_name(gm.name, fmt::format("material_{}", p.material), used);
-                out.materials[name] = map_material(path, model, gm);
-                it = material_names.emplace(p.material, name).first;
-            }
-            shape["material"] = it->second;
-            Vec3 e = emission(gm);
-            if (max_component(e) > 0.f) {
-                shape["emitter"] = {{"type", "area"}, {"radiance", vec3_json(e)}};
+            auto it = mapped.find(p.material);
+            if (it == mapped.end())
+                it = mapped.emplace(p.material, map_material_for_shapes(path, model, p.material, used, out)).first;
+            const MappedMaterial &mm = it->second;
+            shape["material"] = mm.name;
+            if (!mm.emitter.is_null()) {
+                shape["emitter"] = mm.emitter;
                 out.any_emitter = true;
             }
+            if (!mm.alpha.is_null()) shape.update(mm.alpha);  // "alpha", "alpha_cutoff"
         }
         out.shapes.push_back(std::move(shape));
     }
@@ -863,6 +953,7 @@ json gltf_scene_to_json(const std::string &path) {
 
     GltfShapes shapes = primitive_shapes(path, model, *prims);
     if (!shapes.materials.empty()) scene["materials"] = shapes.materials;
+    if (!shapes.textures.empty()) scene["textures"] = shapes.textures;
     scene["shapes"] = shapes.shapes;
 
     if (lights.empty() && !shapes.any_emitter) {

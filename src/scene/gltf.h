@@ -6,11 +6,16 @@
 // are read from accessors of any component type (normalised integers included), indices
 // of any unsigned type or none. TRIANGLES, TRIANGLE_STRIP and TRIANGLE_FAN become
 // triangle lists; POINTS and LINES primitives are skipped with a warning on stderr.
-// Images are never decoded (meso reads no glTF textures yet).
+// Images are never decoded here: textures become `bitmap` objects naming the image files
+// (only an image's header is read, to know whether it has an alpha channel).
 //
 // Scenes: gltf_scene_to_json translates a glTF file into an ordinary meso scene JSON
-// document (camera, materials, shapes, lights) that then goes through the same plugin
-// registry as a hand-written scene; docs/scene-format.md describes the mapping.
+// document (camera, textures, materials, shapes, lights) that then goes through the same
+// plugin registry as a hand-written scene; docs/scene-format.md describes the mapping:
+// metallic-roughness → `gltf_pbr` (normalTexture with its scale → `normalmap`,
+// KHR_texture_transform → the bitmaps' tiling, rotation and offset), emission (factor ×
+// strength × emissiveTexture) → an `area` emitter per shape, alphaMode MASK (BLEND as MASK)
+// → the shapes' `alpha` / `alpha_cutoff`.
 #pragma once
 #include <memory>
 #include <string>

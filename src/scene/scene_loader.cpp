@@ -17,6 +17,7 @@
 #include "lights/light.h"
 #include "lod/lod_build.h"
 #include "bsdf/material.h"
+#include "texture/texture.h"
 #include "scene/default_scene.h"
 #include "scene/gltf.h"
 #include "scene/mitsuba_xml.h"
@@ -144,6 +145,74 @@ struct DeclGuard {
     }
 };
 
+/// The shape's "alpha" and "alpha_cutoff" keys (docs/scene-format.md, "Shapes"), read before the
+/// shape plugin checks its keys: the alpha mask, or null without one or when a constant alpha
+/// keeps the whole surface. The mask is a callback into the texture (geometry cannot include
+/// texture/, so the scene layer, which sees both, makes the link: geometry/shape.h AlphaMask).
+std::shared_ptr<const AlphaMask> parse_alpha_mask(const Properties &p) {
+    if (!p.has("alpha")) {
+        if (p.has("alpha_cutoff")) p.fail("alpha_cutoff", "only meaningful with an \"alpha\" texture");
+        return nullptr;
+    }
+    const float cutoff = p.get_float("alpha_cutoff", 0.5f, Range::closed(0.0, 1.0));
+    std::shared_ptr<const Texture> alpha = p.get_texture("alpha");
+    if (alpha->is_constant() && alpha->eval_float(ShadingContext{}) >= cutoff) return nullptr;
+    auto mask = std::make_shared<AlphaMask>();
+    mask->cutoff = cutoff;
+    mask->alpha = [alpha](Vec2 uv) {
+        ShadingContext ctx;
+        ctx.uv = uv;
+        return alpha->eval_float(ctx);
+    };
+    return mask;
+}
+
+/// Shapes: material, emitter, alpha mask and lod are read here (before the shape plugin checks
+/// for unused keys), the rest by the shape plugin.
+void add_shapes(const Properties &root, const std::shared_ptr<LoadContext> &ctx, Scene &scene) {
+    if (!root.has("shapes")) return;
+    std::shared_ptr<Material> default_material;
+    for (const Properties &p : root.children("shapes")) {
+        std::shared_ptr<Material> material;
+        if (p.has("material")) {
+            material = p.get_material("material");
+        } else {
+            if (!default_material) {
+                static const json default_diffuse = {{"type", "diffuse"}};
+                default_material = create_material(Properties(default_diffuse, "default material", ctx));
+            }
+            material = default_material;
+        }
+        std::shared_ptr<Light> emitter;
+        if (p.has("emitter")) {
+            Properties ep = p.child("emitter");
+            emitter = create_light(ep);
+            if (emitter->is_delta() || emitter->is_infinite())
+                ep.fail("type", fmt::format("light type '{}' cannot be the emitter of a shape (use an 'area' light)", ep.type()));
+        }
+        std::shared_ptr<const AlphaMask> alpha_mask = parse_alpha_mask(p);
+        std::optional<Properties> lod = p.optional_child("lod");
+        std::shared_ptr<Shape> shape = create_shape(p);
+        shape->material = material;
+        if (emitter && dynamic_cast<const ShellShape *>(shape.get()))
+            p.fail("emitter", "a shell-mapped displaced shape cannot be an area emitter (use \"mode\": \"tessellate\" "
+                              "or an undisplaced emitter)");
+        if (p.has("alpha") && !shape->mesh())  // (LoD chains are shell-mapped: refused here too)
+            p.fail("alpha", "an alpha mask needs a triangle-mesh shape (not an analytic sphere or a shell-mapped "
+                            "displacement)");
+        shape->alpha_mask = alpha_mask;
+        if (emitter) {
+            emitter->set_shape(shape.get());
+            shape->emitter = emitter;
+            scene.lights.push_back(emitter);
+        }
+        scene.shapes.push_back(shape);
+        if (lod)
+            for (std::shared_ptr<Shape> &level : build_lod_levels(parse_lod_spec(*lod), shape))
+                scene.shapes.push_back(std::move(level));
+    }
+}
+
 std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, size_t max_triangles) {
     auto ctx = std::make_shared<LoadContext>();
     ctx->max_triangles = max_triangles;
@@ -188,45 +257,7 @@ std::unique_ptr<Scene> build_scene(const json &doc, const std::string &file, siz
     scene->spp = spp;
     scene->sampler = create_sampler(sp);
 
-    // Shapes: material and emitter are read here (before the shape plugin checks for
-    // unused keys), the rest by the shape plugin.
-    std::shared_ptr<Material> default_material;
-    if (root.has("shapes")) {
-        for (const Properties &p : root.children("shapes")) {
-            std::shared_ptr<Material> material;
-            if (p.has("material")) {
-                material = p.get_material("material");
-            } else {
-                if (!default_material) {
-                    static const json default_diffuse = {{"type", "diffuse"}};
-                    default_material = create_material(Properties(default_diffuse, "default material", ctx));
-                }
-                material = default_material;
-            }
-            std::shared_ptr<Light> emitter;
-            if (p.has("emitter")) {
-                Properties ep = p.child("emitter");
-                emitter = create_light(ep);
-                if (emitter->is_delta() || emitter->is_infinite())
-                    ep.fail("type", fmt::format("light type '{}' cannot be the emitter of a shape (use an 'area' light)", ep.type()));
-            }
-            std::optional<Properties> lod = p.optional_child("lod");  // read before the shape checks its keys
-            std::shared_ptr<Shape> shape = create_shape(p);
-            shape->material = material;
-            if (emitter && dynamic_cast<const ShellShape *>(shape.get()))
-                p.fail("emitter", "a shell-mapped displaced shape cannot be an area emitter (use \"mode\": \"tessellate\" "
-                                  "or an undisplaced emitter)");
-            if (emitter) {
-                emitter->set_shape(shape.get());
-                shape->emitter = emitter;
-                scene->lights.push_back(emitter);
-            }
-            scene->shapes.push_back(shape);
-            if (lod)
-                for (std::shared_ptr<Shape> &level : build_lod_levels(parse_lod_spec(*lod), shape))
-                    scene->shapes.push_back(std::move(level));
-        }
-    }
+    add_shapes(root, ctx, *scene);
 
     // Lights not attached to shapes: point, spot, directional, environment.
     if (root.has("lights")) {

@@ -25,8 +25,12 @@
 //   raw          bool    false         true: no sRGB decoding of 8/16-bit data (normal maps,
 //                                      roughness, heights)
 //   scale        float   1             multiplier, finite
-//   offset       [u, v]  [0, 0]        added to uv after tiling: uv' = uv · tiling + offset (glTF
-//                                      KHR_texture_transform without rotation)
+//   offset       [u, v]  [0, 0]        added to uv after tiling and rotation
+//   rotation     float   0             radians, [-1e6, 1e6]: uv' = T R S uv, glTF KHR_texture_transform's
+//                                      order and sign, with S = diag(tiling), T the offset and
+//                                      R = [[cos r, sin r], [-sin r, cos r]] (counter-clockwise in
+//                                      the image, whose v runs down). The ray-differential footprint
+//                                      goes through the same linear map R S.
 //   channel      string  "rgb"         "rgb" | "r" | "g" | "b" | "a": one channel of the file as
 //                                      a grey texture (glTF's metallicRoughnessTexture: "b"
 //                                      metallic, "g" roughness); "rgb" keeps grey files grey
@@ -48,9 +52,14 @@ enum class Filter { Nearest, Bilinear, Trilinear, Ewa };
 
 class BitmapTexture final : public Texture {
 public:
-    BitmapTexture(MipMap mip, Filter filter, float max_anisotropy, float scale, Vec2 tiling, Vec2 offset, std::string name)
-        : m_mip(std::move(mip)), m_filter(filter), m_max_anisotropy(max_anisotropy), m_scale(scale), m_tiling(tiling),
+    BitmapTexture(MipMap mip, Filter filter, float max_anisotropy, float scale, Vec2 tiling, float rotation,
+                  Vec2 offset, std::string name)
+        : m_mip(std::move(mip)), m_filter(filter), m_max_anisotropy(max_anisotropy), m_scale(scale),
           m_offset(offset), m_name(std::move(name)) {
+        // A = R S; rotation 0 gives A = diag(tiling) exactly (sin 0 = 0, cos 0 = 1).
+        const double c = std::cos(double(rotation)), s = std::sin(double(rotation));
+        m_a[0][0] = float(c * tiling.x), m_a[0][1] = float(s * tiling.y);
+        m_a[1][0] = float(-s * tiling.x), m_a[1][1] = float(c * tiling.y);
         float m[3] = {0, 0, 0};
         m_mip.level_mean(0, m);
         m_mean = to_spectrum(m) * m_scale;
@@ -79,25 +88,27 @@ private:
         return m_mip.channels() == 1 ? Spectrum(v[0]) : Spectrum(v[0], v[1], v[2]);
     }
     void lookup(const ShadingContext &ctx, float *v) const {
-        // The image repeats tiling.x times along u and tiling.y along v (matching a
-        // displacement's tiling, so an albedo map stays aligned with the micro-facets).
-        const float tu = m_tiling.x, tv = m_tiling.y;
-        const float u = ctx.uv.x * tu + m_offset.x, w = ctx.uv.y * tv + m_offset.y;
-        switch (m_filter) {
-            case Filter::Nearest: m_mip.nearest(0, u, w, v); break;
-            case Filter::Bilinear: m_mip.bilinear(0, u, w, v); break;
-            case Filter::Trilinear: m_mip.filtered(u, w, ctx.dudx * tu, ctx.dudy * tu, ctx.dvdx * tv, ctx.dvdy * tv, v); break;
-            case Filter::Ewa:
-                m_mip.ewa(u, w, ctx.dudx * tu, ctx.dudy * tu, ctx.dvdx * tv, ctx.dvdy * tv, v, m_max_anisotropy);
-                break;
-        }
+        // uv' = A uv + offset with A = R S: without rotation the image repeats tiling.x times
+        // along u and tiling.y along v (matching a displacement's tiling, so an albedo map stays
+        // aligned with the micro-facets). The footprint's columns (du/dx, dv/dx) and
+        // (du/dy, dv/dy) are tangent vectors in uv, so they map through A as well.
+        const float(&a)[2][2] = m_a;
+        const float u = a[0][0] * ctx.uv.x + a[0][1] * ctx.uv.y + m_offset.x;
+        const float w = a[1][0] * ctx.uv.x + a[1][1] * ctx.uv.y + m_offset.y;
+        if (m_filter == Filter::Nearest) return m_mip.nearest(0, u, w, v);
+        if (m_filter == Filter::Bilinear) return m_mip.bilinear(0, u, w, v);
+        const float dudx = a[0][0] * ctx.dudx + a[0][1] * ctx.dvdx, dudy = a[0][0] * ctx.dudy + a[0][1] * ctx.dvdy;
+        const float dvdx = a[1][0] * ctx.dudx + a[1][1] * ctx.dvdx, dvdy = a[1][0] * ctx.dudy + a[1][1] * ctx.dvdy;
+        if (m_filter == Filter::Trilinear) return m_mip.filtered(u, w, dudx, dudy, dvdx, dvdy, v);
+        m_mip.ewa(u, w, dudx, dudy, dvdx, dvdy, v, m_max_anisotropy);
     }
 
     MipMap m_mip;
     Filter m_filter;
     float m_max_anisotropy;
     float m_scale;
-    Vec2 m_tiling, m_offset;
+    float m_a[2][2];  ///< R S: KHR_texture_transform's rotation times the tiling
+    Vec2 m_offset;
     Spectrum m_mean;
     std::string m_name;
 };
@@ -124,6 +135,7 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
             p.fail("offset", "expected [u, v], each finite with |value| <= 1e6");
         offset = Vec2(o[0], o[1]);
     }
+    const float rotation = p.get_float("rotation", 0.f, Range::closed(-1e6, 1e6));
     const int channel = p.get_enum<int>("channel", "rgb", {{"rgb", -1}, {"r", 0}, {"g", 1}, {"b", 2}, {"a", 3}});
 
     const Image img = read_image_param(p, "filename", file, raw);
@@ -150,10 +162,10 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         }
     if (bad > 0) p.fail("filename", fmt::format("{}: {} texel value(s) are NaN or infinite", file, bad));
     MipMap mip(img.width, img.height, nc, std::move(data), wrap);
-    return std::make_shared<BitmapTexture>(std::move(mip), filter, max_anisotropy, scale, tiling, offset, file);
+    return std::make_shared<BitmapTexture>(std::move(mip), filter, max_anisotropy, scale, tiling, rotation, offset, file);
 }
 
-MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, max_anisotropy, wrap_mode, raw, scale, tiling, offset, channel)",
+MESO_REGISTER_TEXTURE("bitmap", "image texture, MIP-mapped (filename, filter_type, max_anisotropy, wrap_mode, raw, scale, tiling, offset, rotation, channel)",
                       create_bitmap);
 MESO_REGISTER_TEXTURE("image", "alias of 'bitmap'", create_bitmap);
 
