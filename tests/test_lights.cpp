@@ -975,3 +975,36 @@ TEST(AreaLight, TexturedEmitterLightsLikeConstantEmitters) {
     expect_same_blocks(block_stats("textured_far.json", textured_far, 32, 4),
                        block_stats("mean_far.json", mean_far, 32, 4), "far, mean radiance");
 }
+
+// Issue 22: a rectangular emitter (two triangles, orthogonal edges) is sampled as one spherical
+// rectangle (Urena et al. 2013): every light sample's pdf is 1 / (the rectangle's solid angle),
+// which is the sum of its triangles' (Van Oosterom-Strackee), and pdf() agrees. (Irradiance and
+// pdf normalisation for this rectangle are checked by IrradianceMatchesLambert and
+// PdfIntegratesToOne.) A sheared quad is not a rectangle and keeps per-triangle sampling.
+TEST(AreaLight, RectangleIsSampledAsOneSphericalRectangle) {
+    TestMeshShape rect(make_mesh({{-1, -0.5f, 2}, {1, -0.5f, 2}, {1, 0.5f, 2}, {-1, 0.5f, 2}}, {0, 2, 1, 0, 3, 2}));
+    TestMeshShape sheared(make_mesh({{-1, -0.5f, 2}, {1, -0.5f, 2}, {1.6f, 0.5f, 2}, {-0.4f, 0.5f, 2}}, {0, 2, 1, 0, 3, 2}));
+    auto l = make_light({{"type", "area"}, {"sampling", "solid_angle"}});
+    l->set_shape(&rect);
+    auto ls_sheared = make_light({{"type", "area"}, {"sampling", "solid_angle"}});
+    ls_sheared->set_shape(&sheared);
+    PCG32 rng(5);
+    const Vec3 p(0.3f, 0.1f, 0.f);
+    const double omega = sphtri::solid_angle(p, {-1, -0.5f, 2}, {1, -0.5f, 2}, {1, 0.5f, 2}) +
+                         sphtri::solid_angle(p, {-1, -0.5f, 2}, {1, 0.5f, 2}, {-1, 0.5f, 2});
+    int distinct_pdfs_sheared = 0;
+    float first_sheared = -1.f;
+    for (int i = 0; i < 1000; ++i) {
+        LightSample ls;
+        LightSampleContext ctx{p, Vec3(0, 0, 1)};
+        ASSERT_TRUE(l->sample(ctx, {rng.next_float(), rng.next_float()}, ls));
+        EXPECT_NEAR(ls.pdf, 1.0 / omega, 1e-5 / omega);
+        LightHit hit{p + ls.wi * ls.dist, Vec3(0, 0, -1), 0};
+        EXPECT_NEAR(l->pdf(ctx, ls.wi, hit), ls.pdf, 1e-6f * ls.pdf);
+        if (ls_sheared->sample(ctx, {rng.next_float(), rng.next_float()}, ls)) {
+            if (first_sheared < 0) first_sheared = ls.pdf;
+            distinct_pdfs_sheared += std::abs(ls.pdf - first_sheared) > 1e-3f * first_sheared;
+        }
+    }
+    EXPECT_GT(distinct_pdfs_sheared, 0);  // per-triangle pdfs P(t) / Omega_t differ between the halves
+}

@@ -40,10 +40,12 @@
 //   two_sided   bool      default false           emit on both sides
 //   sampling    string    default "solid_angle"   "solid_angle" or "area"
 #include <fmt/format.h>
+#include <algorithm>
 #include <nlohmann/json.hpp>
 #include <vector>
 #include "core/error.h"
 #include "geometry/shape.h"
+#include "lights/spherical_rectangle.h"
 #include "lights/spherical_triangle.h"
 #include "lights/light.h"
 #include "sampling/distribution.h"
@@ -87,7 +89,17 @@ public:
         Vec3 p, n;
         Vec2 uv;  // read only by textures and alpha masks
         float pdf;
-        if (m_mesh) {
+        sphrect::SphericalRectangle sr = spherical_rectangle(ctx.p);
+        if (sr.valid) {
+            // A rectangle seen under a usable solid angle: one direction uniform in all of it.
+            if (!sr.sample(u, p)) return false;
+            double b[3] = {1, 0, 0};
+            const size_t t = locate(p, b);
+            n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
+            if (m_texture || m_shape->alpha_mask) uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
+            if (!towards(ctx, p, out, d2)) return false;
+            pdf = float(1.0 / sr.S);
+        } else if (m_mesh) {
             float pmf, ux;
             size_t t = m_tri_distr.sample_discrete(u.x, &pmf, &ux);
             if (!(pmf > 0.f)) return false;
@@ -133,8 +145,10 @@ public:
         float d2 = length_squared(d);
         if (!(d2 > 0.f)) return 0.f;
         float pdf;
-        if (m_mesh) {
-            if (hit.prim >= m_mesh->triangle_count()) return 0.f;
+        if (m_mesh && hit.prim >= m_mesh->triangle_count()) return 0.f;
+        if (sphrect::SphericalRectangle sr = spherical_rectangle(ctx.p); sr.valid) {
+            pdf = float(1.0 / sr.S);
+        } else if (m_mesh) {
             size_t t = hit.prim;
             float pmf = m_tri_distr.pmf(t);
             if (!(pmf > 0.f)) return 0.f;
@@ -236,6 +250,61 @@ private:
         }
         m_area = float(total);
         m_tri_distr = Distribution1D(m_tri_area);
+        detect_rectangle();
+    }
+
+    /// The emitter as a rectangle seen from p, when it is one (two triangles with orthogonal
+    /// edges) and solid-angle sampling applies there (the same bounds as for triangles); invalid
+    /// otherwise: sample() and pdf() then use the triangles. A function of p alone, so pdf()
+    /// reproduces sample()'s choice.
+    sphrect::SphericalRectangle spherical_rectangle(Vec3 p) const {
+        if (!m_is_rect || !m_solid_angle) return sphrect::SphericalRectangle(p, Vec3(), Vec3(), Vec3());
+        sphrect::SphericalRectangle sr(p, m_rect_s, m_rect_ex, m_rect_ey);
+        if (sr.valid && !(sr.S >= MinSphericalSampleArea && sr.S <= MaxSphericalSampleArea)) sr.valid = false;
+        return sr;
+    }
+    /// The triangle of a rectangular emitter that holds p, with p's barycentrics in it.
+    size_t locate(Vec3 p, double b[3]) const {
+        size_t best = 0;
+        double best_min = -1e300;
+        for (size_t t = 0; t < 2; ++t) {
+            Vec3 p0, p1, p2;
+            triangle(t, p0, p1, p2);
+            const Vec3 e1 = p1 - p0, e2 = p2 - p0, d = p - p0;
+            const double d11 = dot(e1, e1), d12 = dot(e1, e2), d22 = dot(e2, e2), det = d11 * d22 - d12 * d12;
+            const double c1 = dot(d, e1), c2 = dot(d, e2);
+            const double b1 = (d22 * c1 - d12 * c2) / det, b2 = (d11 * c2 - d12 * c1) / det, b0 = 1 - b1 - b2;
+            const double lo = std::min(b0, std::min(b1, b2));
+            if (lo > best_min) {
+                best_min = lo, best = t;
+                b[0] = std::max(0.0, b0), b[1] = std::max(0.0, b1), b[2] = std::max(0.0, b2);
+            }
+        }
+        return best;
+    }
+    /// Whether the mesh is a rectangle (the `rectangle` shape, a quad of a file): two triangles
+    /// over four corners s, s + ex, s + ex + ey, s + ey with ex orthogonal to ey.
+    void detect_rectangle() {
+        m_is_rect = false;
+        if (!m_mesh || m_mesh->triangle_count() != 2 || m_mesh->positions.size() < 4) return;
+        std::vector<Vec3> corners;
+        for (uint32_t i : m_mesh->indices) {
+            const Vec3 q = m_mesh->positions[i];
+            if (std::none_of(corners.begin(), corners.end(), [&](Vec3 c) { return c.x == q.x && c.y == q.y && c.z == q.z; })) corners.push_back(q);
+        }
+        if (corners.size() != 4 || !(m_tri_area[0] > 0.f) || !(m_tri_area[1] > 0.f)) return;
+        if (dot(m_tri_normal[0], m_tri_normal[1]) < 0.9999f) return;  // not coplanar, or folded
+        for (int a = 0; a < 4; ++a)  // a corner whose two neighbours span the rectangle
+            for (int b = 0; b < 4; ++b)
+                for (int c = 0; c < 4; ++c) {
+                    if (a == b || a == c || b == c) continue;
+                    const Vec3 ex = corners[b] - corners[a], ey = corners[c] - corners[a];
+                    const int d = 6 - a - b - c;
+                    const float tol = 1e-5f * (length_squared(ex) + length_squared(ey));
+                    if (std::abs(dot(ex, ey)) > tol || length_squared(corners[a] + ex + ey - corners[d]) > tol) continue;
+                    m_rect_s = corners[a], m_rect_ex = ex, m_rect_ey = ey, m_is_rect = true;
+                    return;
+                }
     }
 
     Spectrum m_radiance;
@@ -247,6 +316,8 @@ private:
     std::vector<Vec3> m_tri_normal;  ///< counter-clockwise unit normals (zero if degenerate)
     Distribution1D m_tri_distr;
     float m_area = 0.f;
+    bool m_is_rect = false;          ///< a rectangle: solid-angle sampled as a whole (sphrect)
+    Vec3 m_rect_s, m_rect_ex, m_rect_ey;
 };
 
 MESO_REGISTER_LIGHT("area", "diffuse area emitter on a shape (radiance: constant or texture, two_sided, sampling)",
