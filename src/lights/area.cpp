@@ -26,6 +26,10 @@
 //                      reproduces it exactly.
 //       "area":        a point uniform in the triangle; pdf = P(t) / area_t · d^2 / |cos|
 //                      = d^2 / (area · |cos theta_light|).
+//   * a rectangle (two triangles over four corners with orthogonal edges: the `rectangle`
+//     shape, a quad from a file) in "solid_angle" mode: a direction uniform in the whole
+//     spherical rectangle (Urena et al. 2013, spherical_rectangle.h), pdf = 1 / Omega, within
+//     the same 3e-4 .. 6.22 sr bounds (outside them: the triangle rules above).
 //   * other shapes (analytic sphere): shape->sample_area() (uniform by area, pdf 1/area)
 //     converted to solid angle, whatever `sampling` says.
 // pdf(ctx, wi, hit) is the density of the point hit.p on triangle hit.prim in the measure
