@@ -109,7 +109,8 @@ public:
             if (!(pmf > 0.f)) return false;
             Vec3 p0, p1, p2;
             triangle(t, p0, p1, p2);
-            bool spherical = use_spherical(ctx.p, p0, p1, p2);
+            double omega;
+            bool spherical = use_spherical(ctx.p, p0, p1, p2, omega);
             double b[3];
             if (spherical) {
                 if (!sphtri::sample(ctx.p, p0, p1, p2, Vec2(ux, u.y), b)) return false;
@@ -123,7 +124,7 @@ public:
             n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
             if (m_texture || m_shape->alpha_mask) uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
             if (!towards(ctx, p, out, d2)) return false;
-            pdf = density(ctx, t, p0, p1, p2, spherical, n, out.wi, d2, pmf);
+            pdf = density(t, spherical, omega, n, out.wi, d2, pmf);
         } else {
             PositionSample ps = m_shape->sample_area(u.x, u);
             p = ps.p;
@@ -158,8 +159,9 @@ public:
             if (!(pmf > 0.f)) return 0.f;
             Vec3 p0, p1, p2;
             triangle(t, p0, p1, p2);
-            bool spherical = use_spherical(ctx.p, p0, p1, p2);
-            pdf = density(ctx, t, p0, p1, p2, spherical, m_tri_normal[t], wi, d2, pmf);
+            double omega;
+            bool spherical = use_spherical(ctx.p, p0, p1, p2, omega);
+            pdf = density(t, spherical, omega, m_tri_normal[t], wi, d2, pmf);
         } else {
             float cos_l = absdot(hit.n, wi);
             pdf = cos_l > 0.f ? d2 / (cos_l * m_area) : 0.f;
@@ -203,15 +205,17 @@ private:
         p1 = m_mesh->positions[idx[1]];
         p2 = m_mesh->positions[idx[2]];
     }
-    bool use_spherical(Vec3 p, Vec3 p0, Vec3 p1, Vec3 p2) const {
+    /// Whether triangle (p0, p1, p2) is solid-angle sampled from p; `omega`: its solid angle then.
+    bool use_spherical(Vec3 p, Vec3 p0, Vec3 p1, Vec3 p2, double &omega) const {
+        omega = 0;
         if (!m_solid_angle) return false;
-        double omega = sphtri::solid_angle(p, p0, p1, p2);
+        omega = sphtri::solid_angle(p, p0, p1, p2);
         return omega >= MinSphericalSampleArea && omega <= MaxSphericalSampleArea;
     }
-    /// Solid-angle density of the light point at distance^2 d2 along wi on triangle t.
-    float density(const LightSampleContext &ctx, size_t t, Vec3 p0, Vec3 p1, Vec3 p2, bool spherical, Vec3 n,
-                  Vec3 wi, float d2, float pmf) const {
-        if (spherical) return float(double(pmf) / sphtri::solid_angle(ctx.p, p0, p1, p2));
+    /// Solid-angle density of the light point at distance^2 d2 along wi on triangle t (chosen
+    /// with probability pmf; omega its solid angle when spherical).
+    float density(size_t t, bool spherical, double omega, Vec3 n, Vec3 wi, float d2, float pmf) const {
+        if (spherical) return float(double(pmf) / omega);
         float cos_l = absdot(n, wi);
         float area_t = m_tri_area[t];
         if (!(cos_l > 0.f) || !(area_t > 0.f)) return 0.f;
