@@ -14,6 +14,7 @@
 #include "core/error.h"
 #include "image/image.h"
 #include "image/image_formats.h"
+#include "cli_capture.h"
 #include "scratch_dir.h"
 
 using namespace meso;
@@ -85,15 +86,6 @@ int written_index(const std::string &name, int channels) {
     if (name == "A") return channels == 2 ? 1 : 3;
     if (name == "R" || name == "G" || name == "B") return name == "R" ? 0 : name == "G" ? 1 : 2;
     return std::stoi(name.substr(7));
-}
-
-std::string error_of(const std::function<void()> &f) {
-    try {
-        f();
-    } catch (const MesoError &e) {
-        return e.what();
-    }
-    return "(no error)";
 }
 
 }  // namespace
@@ -336,7 +328,7 @@ TEST(ImageFormats, ModuleThatCannotBeLoadedIsNamedWithEveryPathTried) {
 TEST(ImageFormats, UnknownAndCorruptFilesNameTheFile) {
     const std::string junk = tmp("junk.xyz");
     std::ofstream(junk) << "this is no image at all";
-    std::string e = error_of([&] { read_image(junk); });
+    std::string e = meso::test::meso_error_of([&] { read_image(junk); });
     EXPECT_EQ(e.rfind(junk + ": cannot read image: ", 0), 0u) << e;
     // a PNG cut inside its pixel data
     Image img = pattern(64, 64, 3);
@@ -344,7 +336,7 @@ TEST(ImageFormats, UnknownAndCorruptFilesNameTheFile) {
     const std::string cut = tmp("cut.png");
     write_png(cut, img);
     fs::resize_file(cut, fs::file_size(cut) / 2);
-    e = error_of([&] { read_image(cut); });
+    e = meso::test::meso_error_of([&] { read_image(cut); });
     EXPECT_EQ(e.rfind(cut + ": cannot read image: ", 0), 0u) << e;
     EXPECT_EQ(e.find('\n'), std::string::npos) << e;
 }
