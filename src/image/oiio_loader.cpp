@@ -3,6 +3,7 @@
 // meso does not link OpenImageIO: a run that only reads and writes EXR and PNG never loads it.
 #include <dlfcn.h>
 #include <unistd.h>
+#include <algorithm>
 #include <climits>
 #include <cstdlib>
 #include <cstring>
@@ -24,6 +25,8 @@ std::vector<std::string> oiio_module_candidates() {
     if (!ec) v.push_back((exe.parent_path() / MESO_OIIO_MODULE_NAME).string());
     v.push_back(MESO_OIIO_MODULE_BUILD_PATH);
     if (const char *env = std::getenv("MESO_OIIO_MODULE"); env && *env) v.push_back(env);
+    for (size_t i = 1; i < v.size(); ++i)  // build/meso: next to the executable is the build tree
+        if (std::find(v.begin(), v.begin() + long(i), v[i]) != v.begin() + long(i)) v.erase(v.begin() + long(i--));
     return v;
 }
 
