@@ -1,19 +1,14 @@
-// Height-map files: reading any grey image OpenImageIO knows (through read_image, without
-// sRGB decoding: an 8/16-bit file holds heights in [0,1] linearly), writing float32 EXR
-// (through write_exr, one channel "Y") and 16-bit PNG normalised to the map's range.
-#include <OpenImageIO/imagebuf.h>
-#include <unistd.h>
+// Height-map files: reading any grey image read_image knows (without sRGB decoding: an
+// 8/16-bit file holds heights in [0,1] linearly), writing float32 EXR (through write_exr, one
+// channel "Y") and 16-bit PNG normalised to the map's range (through write_png16_grey).
 #include <algorithm>
 #include <cmath>
-#include <filesystem>
 #include <fmt/format.h>
 #include "core/error.h"
 #include "geometry/heightmap.h"
 #include "image/image.h"
 
 namespace meso {
-
-namespace fs = std::filesystem;
 
 namespace {
 
@@ -71,20 +66,7 @@ HeightRange write_height_map_png16(const std::string &path, const HeightMap &map
     for (size_t k = 0; k < px.size(); ++k)
         px[k] = span > 0 ? uint16_t(std::lround((double(map.h[k]) - r.lo) / span * 65535.0)) : 0;
 
-    // write_exr's temporary-file-and-rename, for a format it does not write.
-    std::error_code ec;
-    fs::path parent = fs::path(path).parent_path();
-    if (!parent.empty() && !fs::is_directory(parent, ec))
-        throw MesoError(fmt::format("cannot write '{}': directory '{}' does not exist", path, parent.string()));
-    std::string tmp = fmt::format("{}.tmp-{}", path, long(getpid()));
-    OIIO::ImageSpec spec(map.width, map.height, 1, OIIO::TypeDesc::UINT16);
-    spec.channelnames = {"Y"};
-    OIIO::ImageBuf buf(spec, px.data());
-    if (!buf.write(tmp, OIIO::TypeDesc::UINT16, "png") || (fs::rename(tmp, path, ec), ec)) {
-        std::string why = buf.has_error() ? buf.geterror() : ec.message();
-        fs::remove(tmp, ec);
-        throw MesoError(fmt::format("cannot write '{}': {}", path, why));
-    }
+    write_png16_grey(path, map.width, map.height, px);
     return r;
 }
 

@@ -1,7 +1,11 @@
-// Float images and their I/O (OpenImageIO). EXR is written as full 32-bit float (never
+// Float images and their I/O. EXR (OpenEXR) and PNG (libpng) are read and written here;
+// every other format OpenImageIO reads (Radiance .hdr, PFM, JPEG, TIFF, ...) goes through the
+// OpenImageIO module (libmeso_oiio.so, image/oiio_abi.h), loaded on first use, so a run that
+// only touches EXR and PNG never loads OpenImageIO. EXR is written as full 32-bit float (never
 // half); PNG is tone-mapped sRGB. Writes go to a temporary file renamed into place, so an
 // error never leaves a half-written output.
 #pragma once
+#include <cstdint>
 #include <string>
 #include <utility>
 #include <vector>
@@ -22,8 +26,10 @@ struct Image {
     void set_rgb(int x, int y, Spectrum s);
 };
 
-/// Reads any format OpenImageIO knows as float. `linearize_srgb`: decode 8/16-bit sRGB
-/// encoded files (PNG/JPEG colour textures) to linear; float formats are taken as linear.
+/// Reads any format OpenImageIO knows as float (EXR and PNG without it). `linearize_srgb`:
+/// decode 8/16-bit sRGB encoded files (PNG/JPEG colour textures) to linear unless the file says
+/// it is linear; float formats are taken as linear; alpha is never decoded. PNG colour is read
+/// as stored (unassociated alpha, as the format defines it).
 /// Throws MesoError("<path>: cannot read image: <reason>") on failure.
 Image read_image(const std::string &path, bool linearize_srgb = false);
 /// The number of channels an image file declares (header only), 0 when it cannot be opened
@@ -43,6 +49,17 @@ void write_exr(const std::string &path, const Image &img, const ImageMetadata &m
 ImageMetadata read_image_metadata(const std::string &path);
 /// 8-bit sRGB PNG of exposure-scaled, clamped linear RGB.
 void write_png(const std::string &path, const Image &img, float exposure_stops = 0.f);
+/// 16-bit grey PNG of `values` (width * height, top row first), stored as given (no colour
+/// chunk). Throws MesoError("cannot write '<path>': ...") on failure.
+void write_png16_grey(const std::string &path, int width, int height, const std::vector<uint16_t> &values);
+
+/// How an image file stores its samples (the widest of its channels).
+enum class SampleType { UInt8, UInt16, Half, Float, UInt32, Other };
+/// The sample type an image file's header declares, without reading its pixels. Throws
+/// MesoError("<path>: cannot read image: ...") like read_image.
+SampleType stored_sample_type(const std::string &path);
+/// 8- and 16-bit integer samples: sRGB-encoded colour by convention (read_image's linearize_srgb).
+inline bool integer_encoded(SampleType t) { return t == SampleType::UInt8 || t == SampleType::UInt16; }
 /// Linear -> sRGB transfer (and inverse) for one channel value.
 float linear_to_srgb(float v);
 float srgb_to_linear(float v);

@@ -1,7 +1,6 @@
 // Prefiltered LoD model: tables, lookups, directory I/O (see model.h for the layout).
 #include "prefilter/model.h"
 #include "core/text_file.h"
-#include <OpenImageIO/imageio.h>
 #include <tbb/parallel_for.h>
 #include <algorithm>
 #include <cmath>

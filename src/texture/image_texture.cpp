@@ -1,10 +1,10 @@
 // `bitmap` texture (alias `image`): an image file looked up by uv, MIP-mapped.
 //
 // Model: Mitsuba 3 `bitmap` with pbrt-style MIP mapping (Williams 1983). The image is read
-// through OpenImageIO; 8- and 16-bit files are sRGB-decoded to linear unless `raw`
-// (float formats are always linear). uv (0,0) is the top-left corner of the image, v points
-// down (glTF / Mitsuba convention; see texture/mipmap.h). Grey images give grey spectra;
-// alpha is ignored.
+// by read_image (EXR, PNG, or any format OpenImageIO reads); 8- and 16-bit files are
+// sRGB-decoded to linear unless `raw` (float formats are always linear). uv (0,0) is the
+// top-left corner of the image, v points down (glTF / Mitsuba convention; see
+// texture/mipmap.h). Grey images give grey spectra; alpha is ignored.
 //   nearest:   the level-0 texel containing uv
 //   bilinear:  level-0 bilinear interpolation between texel centres
 //   trilinear: the MIP level from the ray-differential footprint,

@@ -1,5 +1,4 @@
 #include "texture/normal_source.h"
-#include <OpenImageIO/imageio.h>
 #include <cmath>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -10,18 +9,6 @@
 #include "core/properties.h"
 
 namespace meso {
-
-namespace {
-
-/// Whether a file stores 8/16-bit integers (normals encoded as c = (n + 1) / 2).
-bool integer_encoded_file(const std::string &path) {
-    auto in = OIIO::ImageInput::open(path);
-    if (!in) return false;  // read_image reports the error
-    const auto base = OIIO::TypeDesc::BASETYPE(in->spec().format.basetype);
-    return base == OIIO::TypeDesc::UINT8 || base == OIIO::TypeDesc::UINT16;
-}
-
-}  // namespace
 
 NormalSource::NormalSource(Vec3 constant) : m_const(constant) {}
 
@@ -101,7 +88,7 @@ NormalSource NormalSource::parse(const Properties &p, const std::string &constan
             std::shared_ptr<MipMap> mip;
             try {
                 Image img = read_image(file, /*linearize_srgb=*/false);
-                mip = std::make_shared<MipMap>(normal_map_mip(img, integer_encoded_file(file)));
+                mip = std::make_shared<MipMap>(normal_map_mip(img, integer_encoded(stored_sample_type(file))));
             } catch (const MesoError &e) {
                 p.fail("normals", e.what());
             }
