@@ -292,8 +292,8 @@ TEST(ImageFormats, PaletteAndLowBitDepthPngAreExpandedAsOpenImageIODoes) {
     EXPECT_FLOAT_EQ(pal.data[4 + 3], 128.f / 255.f);  // its transparency
 }
 
-// Formats other than EXR and PNG go through the OpenImageIO module and read as OpenImageIO
-// reads them directly.
+// Radiance .hdr is read natively (image/hdr_file.cpp), other formats through the OpenImageIO
+// module; both equal what OpenImageIO reads directly, bit for bit.
 TEST(ImageFormats, HdrAndTiffThroughTheModuleEqualOpenImageIO) {
     const std::string hdr = std::string(MESO_SOURCE_DIR) + "/scenes/assets/sky.hdr";
     const OiioRead o = oiio_read(hdr);
@@ -302,6 +302,27 @@ TEST(ImageFormats, HdrAndTiffThroughTheModuleEqualOpenImageIO) {
     ASSERT_EQ(img.data.size(), o.pixels.size());
     EXPECT_EQ(std::memcmp(img.data.data(), o.pixels.data(), o.pixels.size() * sizeof(float)), 0);
     EXPECT_EQ(stored_sample_type(hdr), SampleType::Float);
+
+    // An RLE-encoded .hdr written by OpenImageIO (width >= 8: new RLE), with zeros and a wide range.
+    const std::string hdr2 = tmp("rle.hdr");
+    std::vector<float> v(size_t(37) * 5 * 3);
+    for (size_t i = 0; i < v.size(); ++i) v[i] = i % 7 == 0 ? 0.f : float(std::ldexp(1.0 + 0.37 * double(i % 11), int(i % 23) - 11));
+    oiio_write(hdr2, 37, 5, {"R", "G", "B"}, OIIO::TypeDesc::FLOAT, v);
+    EXPECT_EQ(read_image(hdr2).data, oiio_read(hdr2).pixels);
+    // Truncated: the error names the file and the row.
+    const std::string cut = tmp("cut.hdr");
+    {
+        std::ifstream in(hdr2, std::ios::binary);
+        std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+        std::ofstream(cut, std::ios::binary) << bytes.substr(0, bytes.size() - 40);
+    }
+    try {
+        read_image(cut);
+        ADD_FAILURE() << "a truncated .hdr was read";
+    } catch (const MesoError &e) {
+        EXPECT_NE(std::string(e.what()).find("cut.hdr"), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find("truncated at row"), std::string::npos) << e.what();
+    }
 
     const std::string tif = tmp("a.tif");
     oiio_write(tif, 3, 1, {"R", "G", "B"}, OIIO::TypeDesc::UINT16, {0, 1000, 30000, 65535, 5, 6, 7, 8, 9});
@@ -363,7 +384,7 @@ bool mentions_openimageio(const std::string &s) {
 }  // namespace
 
 // Issue 22: the meso binary does not link OpenImageIO (0.2 s and 130 MB at every start-up), and
-// reading and writing EXR and PNG does not load it; a .hdr loads the module.
+// reading and writing EXR, PNG and Radiance .hdr does not load it; a TIFF loads the module.
 TEST(ImageFormats, MesoLoadsOpenImageIOOnlyForOtherFormats) {
     const std::string meso = MESO_BINARY;
     const std::string libs = run_shell("LD_TRACE_LOADED_OBJECTS=1 '" + meso + "'");  // what ldd prints
@@ -381,7 +402,12 @@ TEST(ImageFormats, MesoLoadsOpenImageIOOnlyForOtherFormats) {
 
     const std::string hdr = std::string(MESO_SOURCE_DIR) + "/scenes/assets/sky.hdr";
     log = run_shell("LD_DEBUG=files '" + meso + "' convert '" + hdr + "' '" + tmp("sky.exr") + "'");
+    EXPECT_TRUE(fs::exists(tmp("sky.exr")));
+    EXPECT_EQ(log.find("libmeso_oiio"), std::string::npos);
+    const std::string tif = tmp("mod.tif");
+    oiio_write(tif, 2, 1, {"R", "G", "B"}, OIIO::TypeDesc::UINT8, {0, 10, 20, 30, 40, 50});
+    log = run_shell("LD_DEBUG=files '" + meso + "' convert '" + tif + "' '" + tmp("tif.exr") + "'");
     EXPECT_NE(log.find("libmeso_oiio"), std::string::npos);
     EXPECT_TRUE(mentions_openimageio(log));
-    EXPECT_TRUE(fs::exists(tmp("sky.exr")));
+    EXPECT_TRUE(fs::exists(tmp("tif.exr")));
 }

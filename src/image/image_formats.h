@@ -36,6 +36,9 @@ void set_header_size(DecodedImage &d, int64_t width, int64_t height, int channel
 /// image_read_error on failure.
 DecodedImage read_exr_file(const std::string &path, bool pixels);
 DecodedImage read_png_file(const std::string &path, bool pixels);
+/// Radiance RGBE in the standard orientation (image/hdr_file.cpp); other .hdr files go to the module.
+DecodedImage read_hdr_file(const std::string &path, bool pixels);
+bool is_plain_rgbe_file(const std::string &path);
 DecodedImage read_oiio_file(const std::string &path, bool pixels);
 
 /// The writers write `path` (a temporary file: image_io.cpp renames it into place) and throw

@@ -118,7 +118,7 @@ void check_image(const std::string &path, const Image &img) {
         write_error(path, "pixel buffer size does not match the image size");
 }
 
-enum class FileKind { Exr, Png, Other };
+enum class FileKind { Exr, Png, Hdr, Other };
 
 /// The reader for a file, by its first bytes (not its name): EXR and PNG are read here, any
 /// other file goes to the OpenImageIO module, which tells the formats it knows apart.
@@ -129,6 +129,7 @@ FileKind file_kind(const std::string &path) {
     const std::streamsize n = f.gcount();
     if (n >= 4 && std::memcmp(magic, "\x76\x2f\x31\x01", 4) == 0) return FileKind::Exr;
     if (n == 8 && std::memcmp(magic, "\x89PNG\r\n\x1a\n", 8) == 0) return FileKind::Png;
+    if (n >= 2 && magic[0] == '#' && magic[1] == '?' && is_plain_rgbe_file(path)) return FileKind::Hdr;
     return FileKind::Other;
 }
 
@@ -142,6 +143,7 @@ DecodedImage read_file(const std::string &path, bool pixels) {
     switch (file_kind(path)) {
     case FileKind::Exr: return read_exr_file(path, pixels);
     case FileKind::Png: return read_png_file(path, pixels);
+    case FileKind::Hdr: return read_hdr_file(path, pixels);
     default: return read_oiio_file(path, pixels);
     }
 }
