@@ -339,3 +339,13 @@ TEST(MipMap, TrilinearLookup) {
     EXPECT_NEAR(t->eval(at(u, v, std::sqrt(2.f) / N, 0, 0, 0)).g, 0.75f, 1e-5f);
     EXPECT_NE(t->to_string().find("5 levels"), std::string::npos) << t->to_string();
 }
+
+// Issue 23: a bitmap's edge mode also reads as "wrap", the displacement's name; both at once is refused.
+TEST(TextureBitmap, WrapIsAnAliasOfWrapMode) {
+    const std::string file = std::string(MESO_SOURCE_DIR) + "/scenes/assets/sawtooth64.exr";
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", file}, {"wrap", "clamp"}, {"wrap_mode", "clamp"}}),
+              "scene.json: textures.tex.wrap: give either \"wrap\" or \"wrap_mode\" (the same setting), not both");
+    EXPECT_NE(texture_error({{"type", "bitmap"}, {"filename", file}, {"wrap", "tile"}}).find("textures.tex.wrap: expected"),
+              std::string::npos);
+    EXPECT_EQ(texture_error({{"type", "bitmap"}, {"filename", file}, {"wrap", "mirror"}}), "(no error)");
+}

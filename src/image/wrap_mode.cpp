@@ -17,4 +17,9 @@ WrapMode parse_wrap_mode(const Properties &p, const std::string &key, WrapMode d
                                 {{"repeat", WrapMode::Repeat}, {"clamp", WrapMode::Clamp}, {"mirror", WrapMode::Mirror}});
 }
 
+WrapMode parse_texture_wrap(const Properties &p) {
+    if (p.has("wrap") && p.has("wrap_mode")) p.fail("wrap", "give either \"wrap\" or \"wrap_mode\" (the same setting), not both");
+    return parse_wrap_mode(p, p.has("wrap") ? "wrap" : "wrap_mode");
+}
+
 }  // namespace meso

@@ -30,5 +30,8 @@ const char *wrap_mode_name(WrapMode mode);
 class Properties;
 /// The wrap parameter `key` ("repeat", "clamp" or "mirror"; `def` when absent).
 WrapMode parse_wrap_mode(const Properties &p, const std::string &key, WrapMode def = WrapMode::Repeat);
+/// A texture's edge mode under either of its names: "wrap_mode" (Mitsuba 3's) or "wrap" (the
+/// displacement's); giving both is an error.
+WrapMode parse_texture_wrap(const Properties &p);
 
 }  // namespace meso

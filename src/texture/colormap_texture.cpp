@@ -500,7 +500,7 @@ std::unique_ptr<Driver> make_image(const Properties &p) {
     const std::string file = p.get_file("filename");
     const bool raw = p.get_bool("raw", false);
     const double scale = get_number(p, "scale", 1.0), offset = get_number(p, "offset", 0.0);
-    const WrapMode wrap = parse_wrap_mode(p, "wrap_mode");
+    const WrapMode wrap = parse_texture_wrap(p);
     Vec2 tiling(1.f, 1.f);
     if (p.has("tiling")) {
         const auto [t0, t1] = p.get_tiling();

@@ -21,7 +21,7 @@
 //   filter_type  string  "trilinear"   "nearest" | "bilinear" | "trilinear" | "ewa"
 //   max_anisotropy float 8             ewa only: largest major/minor axis ratio, finite,
 //                                      >= 1 (above 64 acts as 64, which bounds the cost)
-//   wrap_mode    string  "repeat"      "repeat" | "clamp" | "mirror"
+//   wrap_mode    string  "repeat"      "repeat" | "clamp" | "mirror" (also "wrap", the displacement's name)
 //   raw          bool    false         true: no sRGB decoding of 8/16-bit data (normal maps,
 //                                      roughness, heights)
 //   scale        float   1             multiplier, finite
@@ -119,7 +119,7 @@ std::shared_ptr<Texture> create_bitmap(const Properties &p) {
         "filter_type", "trilinear",
         {{"nearest", Filter::Nearest}, {"bilinear", Filter::Bilinear}, {"trilinear", Filter::Trilinear}, {"ewa", Filter::Ewa}});
     float max_anisotropy = p.get_float("max_anisotropy", 8.f, Range::at_least(1.0));
-    const WrapMode wrap = parse_wrap_mode(p, "wrap_mode");
+    const WrapMode wrap = parse_texture_wrap(p);
     bool raw = p.get_bool("raw", false);
     float scale = p.get_float("scale", 1.f);
     Vec2 tiling(1.f, 1.f);
