@@ -69,8 +69,8 @@
 // pdf_k(ωi) = base.pdf(F_k ωo, F_k ωi), NOT the mixture. sample_stochastic draws k with u_lobe
 // (its leftover goes to the base's lobe choice, as in sample()), samples the base in node k's
 // frame (the same directions as sample(): pdf() stays the exact density of the directions) and
-// returns pdf = pdf_k(ωi), weight = Σ(ωo) g_k(ωo, ωi) / pdf_k(ωi): 1 base sample + 1 base eval_pdf,
-// no pass over the nodes beyond the choice. Given the direction, the node was k with probability
+// returns pdf = pdf_k(ωi), weight = Σ(ωo) g_k(ωo, ωi) / pdf_k(ωi), both from the base's own sample
+// record: 1 base sample, no base evaluation and no pass over the nodes beyond the choice. Given the direction, the node was k with probability
 // P_k pdf_k(ωi) / pdf(ωi), so E[weight | ωi] = Σ_k w_k g_k / pdf(ωi) = eval / pdf: the exact
 // weight is the conditional mean of the stochastic one.
 //
@@ -160,8 +160,10 @@ public:
     /// for the O(N) pass once.
     bool pick_node(const Vec3 &wo, double u, NodePick &pick) const;
     /// Samples the base in the picked node's frame (the leftover of u_lobe picks the base's own
-    /// lobe): wi in the macro frame and the base's flags; false below either horizon.
-    bool sample_base_in_node(const ShadingContext &ctx, const NodePick &pick, Vec2 u, Vec3 &wi, uint32_t &flags) const;
+    /// lobe): wi in the macro frame and the base's flags (and, when base is not null, the base's
+    /// sample record in the node's frame); false below either horizon.
+    bool sample_base_in_node(const ShadingContext &ctx, const NodePick &pick, Vec2 u, Vec3 &wi, uint32_t &flags,
+                             BSDFSample *base = nullptr) const;
     /// Σ(wo) · g_k(wo, wi) for the picked node (the one-node estimate of eval) and, when pdf is not
     /// null, pdf_k(wi) = base.pdf in the node's frame into *pdf (0 below either horizon).
     Spectrum eval_pdf_node(const ShadingContext &ctx, const NodePick &pick, const Vec3 &wo, const Vec3 &wi,
@@ -170,7 +172,9 @@ public:
     Spectrum eval_pdf_stochastic(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, double u,
                                  float *pdf) const;
     /// The directions of sample() (same u_lobe, u), with out.pdf = pdf_k(wi) of the chosen node and
-    /// out.weight = Σ(wo) g_k(wo, wi) / pdf_k(wi); the chosen node into *pick when not null.
+    /// out.weight = Σ(wo) g_k(wo, wi) / pdf_k(wi), both from the base's sample record (at the
+    /// direction in the node's frame, before the rotation to the macro frame rounds it); the
+    /// chosen node into *pick when not null.
     bool sample_stochastic(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out,
                            NodePick *pick = nullptr) const;
 
@@ -194,11 +198,20 @@ private:
     double weight(const NdfNode &k, float lo_z, float wo_z) const {
         return m_opt.projected_area ? k.weight * double(lo_z) / double(wo_z) : k.weight;
     }
+    /// Nodes per block of pick_node's two-level running sum (block sums in pick_weights).
+    static constexpr size_t kPickBlock = 8;
+    /// w[k] = weight(k) where node k faces wo, else 0, for the padded node arrays, and block[b] =
+    /// the sum of w over block b (pick_node's pass over the nodes).
+    void pick_weights(const Vec3 &wo, double *w, double *block) const;
     /// Σ_k c_k [F_k wo .z > 0]: the normaliser of the node choice P_k(wo).
     double selection_total(const Vec3 &wo) const;
 
     std::shared_ptr<const Material> m_base;
     std::vector<NdfNode> m_nodes;
+    /// m_nodes[k].frame.n by axis and m_nodes[k].weight (pick_node's pass), padded with zeros to
+    /// a multiple of kPickBlock.
+    std::vector<float> m_nx, m_ny, m_nz;
+    std::vector<double> m_c;
     QuadratureOptions m_opt;
     size_t m_lobes = 0;
     double m_total = 0.0, m_projected = 0.0;

@@ -12,7 +12,7 @@
 //   <base>                             the base BRDF alone: diffuse, conductor (rough, Beckmann),
 //                                      plastic (rough GGX coat)
 //   prefiltered:<base>:quadrature      `prefiltered` on a model that `meso prefilter`'s pipeline
-//   prefiltered:<base>:stochastic      builds here with that base (fbm map 256², level x16 =
+//   prefiltered:<base>:stochastic      builds here with that base (fbm map 128², level x8 =
 //                                      16 x 16 patches, 6 lobes, 3 x 4 quadrature nodes per lobe,
 //                                      N = 15, M = 4; few paths: the tables' noise does not
 //                                      change the cost)
@@ -86,13 +86,13 @@ const std::vector<Base> kBases = {
     {"conductor", R"({"type": "conductor", "material": "Au", "distribution": "beckmann", "alpha": 0.25})"},
     {"plastic", R"({"type": "plastic", "diffuse_reflectance": [0.5, 0.2, 0.1], "distribution": "ggx", "alpha": 0.2})"},
 };
-constexpr int kFactor = 16;
+constexpr int kFactor = 8;
 
 /// A small model made by the prefilter pipeline with this base (see the header), written to dir.
 void build_small_model(const Base &b, const std::string &dir) {
     prefilter::PipelineOptions o;
     o.generator = "fbm";
-    o.generator_params = {{"size", "256"}, {"amplitude", "0.03"}, {"frequency", "4"}};
+    o.generator_params = {{"size", "128"}, {"amplitude", "0.03"}, {"frequency", "4"}};
     o.base = b.json;
     o.scales = {kFactor};
     o.M = 4;
