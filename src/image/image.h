@@ -17,13 +17,8 @@ struct Image {
     Image(int w, int h, int c = 3) : width(w), height(h), channels(c), data(size_t(w) * h * c, 0.f) {}
     float &at(int x, int y, int c) { return data[(size_t(y) * width + x) * channels + c]; }
     float at(int x, int y, int c) const { return data[(size_t(y) * width + x) * channels + c]; }
-    /// RGB of a pixel (grey images replicate their channel; alpha is ignored). Inline: table
-    /// lookups in shading (the prefiltered material's S and T) read 16 texels per call.
-    Spectrum rgb(int x, int y) const {
-        const float *p = &data[(size_t(y) * width + x) * channels];
-        if (channels >= 3) return Spectrum(p[0], p[1], p[2]);
-        return Spectrum(p[0]);  // grey (+ alpha)
-    }
+    /// RGB of a pixel (grey images replicate their channel; alpha is ignored).
+    Spectrum rgb(int x, int y) const;
     void set_rgb(int x, int y, Spectrum s);
 };
 

@@ -27,6 +27,12 @@ using OIIO::ImageOutput;
 using OIIO::ImageSpec;
 using OIIO::TypeDesc;
 
+Spectrum Image::rgb(int x, int y) const {
+    const float *p = &data[(size_t(y) * width + x) * channels];
+    if (channels >= 3) return Spectrum(p[0], p[1], p[2]);
+    return Spectrum(p[0]);  // grey (+ alpha)
+}
+
 void Image::set_rgb(int x, int y, Spectrum s) {
     float *p = &data[(size_t(y) * width + x) * channels];
     if (channels >= 3) {

@@ -103,13 +103,15 @@ MultiLobeBrdf::MultiLobeBrdf(std::shared_ptr<const Material> base, const PatchNd
             }
         }
     }
-    // The normals and weights again, one array each, for pick_node's scan.
+    // The normals and weights again, by blocks of kPickBlock, for pick_node's pass.
     // Padded to whole blocks of kPickBlock with zero normals and weights (they face nothing).
     const size_t padded = (m_nodes.size() + kPickBlock - 1) / kPickBlock * kPickBlock;
-    m_nx.assign(padded, 0.f), m_ny.assign(padded, 0.f), m_nz.assign(padded, 0.f), m_c.assign(padded, 0.0);
+    m_blocks.assign(padded / kPickBlock, NodeBlock{});
     for (size_t q = 0; q < m_nodes.size(); ++q) {
         const NdfNode &k = m_nodes[q];
-        m_nx[q] = k.frame.n.x, m_ny[q] = k.frame.n.y, m_nz[q] = k.frame.n.z, m_c[q] = k.weight;
+        NodeBlock &b = m_blocks[q / kPickBlock];
+        const size_t j = q % kPickBlock;
+        b.nx[j] = k.frame.n.x, b.ny[j] = k.frame.n.y, b.nz[j] = k.frame.n.z, b.c[j] = k.weight;
     }
 }
 
@@ -214,25 +216,24 @@ void MultiLobeBrdf::pick_weights(const Vec3 &wo, double *w, double *block) const
     // nothing. Everything is read into locals first: stores to w must not make the compiler
     // reload them.
     static_assert(kPickBlock == 8, "a block is two vectors of four");
-    const size_t nb = m_nx.size() / kPickBlock;
-    const float *nx = m_nx.data(), *ny = m_ny.data(), *nz = m_nz.data();
-    const double *cw = m_c.data();
+    const size_t nb = m_blocks.size();
+    const NodeBlock *blocks = m_blocks.data();
     const float ox = wo.x, oy = wo.y, oz = wo.z;
     const bool projected = m_opt.projected_area;
     const F4 zero = {0.f, 0.f, 0.f, 0.f};
     for (size_t b = 0; b < nb; ++b) {
-        const size_t q = b * kPickBlock;
+        const NodeBlock &nb_ = blocks[b];
         D4 wq[2];
         for (size_t h = 0; h < 2; ++h) {
-            const size_t r = q + 4 * h;
-            const F4 z = ox * load4(nx + r) + oy * load4(ny + r) + oz * load4(nz + r);
+            const size_t j = 4 * h;
+            const F4 z = ox * load4(nb_.nx + j) + oy * load4(nb_.ny + j) + oz * load4(nb_.nz + j);
             const L4 facing = __builtin_convertvector(z > zero, L4);  // all ones where the node faces wo
             D4 c;
-            std::memcpy(&c, cw + r, sizeof c);
+            std::memcpy(&c, nb_.c + j, sizeof c);
             // weight(): c_k, or c_k <ω_k, ωo> / <ω_g, ωo> with projected_area
             if (projected) c = c * __builtin_convertvector(z, D4) / double(oz);
             wq[h] = (D4)((L4)c & facing);
-            std::memcpy(w + r, &wq[h], sizeof wq[h]);
+            std::memcpy(w + b * kPickBlock + j, &wq[h], sizeof wq[h]);
         }
         const D4 s = wq[0] + wq[1];
         block[b] = (s[0] + s[1]) + (s[2] + s[3]);
@@ -250,9 +251,9 @@ bool MultiLobeBrdf::pick_node(const Vec3 &wo, double u, NodePick &pick) const {
     // rounding. The weights are reused while the instance and wo (bit for bit) stay the same
     // (next-event estimation and BSDF sampling at one vertex).
     thread_local PickCache cache;
-    const size_t n = m_nodes.size(), nb = m_nx.size() / kPickBlock;
+    const size_t n = m_nodes.size(), nb = m_blocks.size();
     if (cache.owner != m_id || cache.wo.x != wo.x || cache.wo.y != wo.y || cache.wo.z != wo.z) {
-        if (cache.w.size() < m_nx.size()) cache.w.resize(m_nx.size()), cache.block.resize(nb);
+        if (cache.w.size() < nb * kPickBlock) cache.w.resize(nb * kPickBlock), cache.block.resize(nb);
         pick_weights(wo, cache.w.data(), cache.block.data());
         double sum = 0.0;
         for (size_t b = 0; b < nb; ++b) sum += cache.block[b];
@@ -284,7 +285,12 @@ bool MultiLobeBrdf::pick_node(const Vec3 &wo, double u, NodePick &pick) const {
             if (w[q] > 0.0) chosen = q;
     if (chosen >= n) return false;
     pick.node = &m_nodes[chosen];
-    pick.lo = pick.node->frame.to_local(wo);
+    // The node's frame from its normal in the scan's arrays (as the constructor built it:
+    // Frame(ω_k)), so that a pick touches no NdfNode.
+    const NodeBlock &cb = m_blocks[chosen / kPickBlock];
+    const size_t cj = chosen % kPickBlock;
+    pick.frame = Frame(Vec3(cb.nx[cj], cb.ny[cj], cb.nz[cj]));
+    pick.lo = pick.frame.to_local(wo);
     pick.total = total;
     pick.u_rescaled = u_rescaled;
     return true;
@@ -310,7 +316,7 @@ bool MultiLobeBrdf::sample_base_in_node(const ShadingContext &ctx, const NodePic
     BSDFSample bs;
     if (!m_base->sample(ctx, pick.lo, ub, u, bs)) return false;
     if (bs.flags & BSDF_Delta) return false;  // excluded in the constructor; defensive
-    wi = normalize(pick.node->frame.to_world(bs.wi));
+    wi = normalize(pick.frame.to_world(bs.wi));
     flags = bs.flags;
     if (base) *base = bs;
     return wi.z > 0.f;  // below the macro horizon: the path ends (pdf excludes it)
@@ -331,7 +337,7 @@ Spectrum MultiLobeBrdf::eval_pdf_node(const ShadingContext &ctx, const NodePick 
                                       const Vec3 &wi, float *pdf_out) const {
     if (pdf_out) *pdf_out = 0.f;
     if (!pick.node || !(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
-    const Vec3 li = pick.node->frame.to_local(wi);
+    const Vec3 li = pick.frame.to_local(wi);
     if (!(li.z > 0.f)) return Spectrum(0.f);  // g_k = 0 (and pdf_k = 0: reflection-only base)
     const Spectrum f = m_base->eval_pdf(ctx, pick.lo, li, pdf_out);  // g_k = f · <ω_k, ωi>
     const double s = pick.total;  // c_k g_k / P_k = Σ g_k (weight() of the choice in both modes)

@@ -149,6 +149,7 @@ public:
     /// (the choice of sample()), for the stochastic estimator.
     struct NodePick {
         const NdfNode *node = nullptr;
+        Frame frame;               ///< node->frame
         Vec3 lo;                   ///< wo in the node's frame (lo.z > 0)
         double total = 0.0;        ///< Σ(wo) = Σ_k weight(k) over the nodes visible from wo
         double u_rescaled = 0.0;   ///< where u fell inside the node's interval, in [0, 1]
@@ -208,10 +209,13 @@ private:
 
     std::shared_ptr<const Material> m_base;
     std::vector<NdfNode> m_nodes;
-    /// m_nodes[k].frame.n by axis and m_nodes[k].weight (pick_node's pass), padded with zeros to
-    /// a multiple of kPickBlock.
-    std::vector<float> m_nx, m_ny, m_nz;
-    std::vector<double> m_c;
+    /// m_nodes[k].frame.n by axis and m_nodes[k].weight for k in a block of kPickBlock nodes
+    /// (pick_node's pass reads these only), padded with zeros (normals that face nothing).
+    struct NodeBlock {
+        float nx[kPickBlock] = {}, ny[kPickBlock] = {}, nz[kPickBlock] = {};
+        double c[kPickBlock] = {};
+    };
+    std::vector<NodeBlock> m_blocks;
     QuadratureOptions m_opt;
     size_t m_lobes = 0;
     double m_total = 0.0, m_projected = 0.0;
