@@ -38,6 +38,10 @@
 // also inside the path tracer's MIS, which pairs exactly these pdfs). 1 base evaluation
 // instead of N, at the price of more variance per sample. eval and pdf stay exact, and so does
 // everything without u_eval (`meso material`, the χ² tests): there sample's pdf = pdf().
+// Cost of one shading sample (eval_pdf + sample) on a flat surface, relative to the base's
+// (build/bench/meso_microbench, docs/performance.md): "stochastic" 1.6x for a rough conductor,
+// 3x for rough plastic, 20x for a Lambertian base (one S lookup costs more than that base);
+// "quadrature" 27-90x (N base evaluations per pass).
 //
 // Base material. By default, the one the model was made with (manifest "input"."base", a
 // meso material object); relative file names inside it (textures) resolve against the

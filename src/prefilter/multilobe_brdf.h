@@ -56,7 +56,10 @@
 // without delta lobes (smooth conductor, smooth plastic coat: rejected with MesoError).
 //
 // Cost: eval and pdf are O(N) base evaluations, N = Σ kept nodes ≤ lobes · n_u · n_φ (6 · 4 · 6 =
-// 144 by default); sample is O(N) for the node choice plus pdf and eval (3 passes).
+// 144 by default); sample is O(N) for the node choice plus one eval_pdf pass. The node choice's
+// pass over the nodes (pick_node) reads only a compact copy of their normals and weights, four
+// nodes at a time, and is shared by every call with the same wo (next-event estimation and BSDF
+// sampling at one vertex).
 //
 // Stochastic one-node estimator (eval_pdf_stochastic, sample_stochastic; the `prefiltered`
 // material's "estimator": "stochastic"). With g_k(ωo, ωi) = base.eval(F_k ωo, F_k ωi),
