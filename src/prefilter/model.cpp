@@ -300,7 +300,7 @@ std::string SvMultiLobe::to_string() const {
 }
 size_t SvMultiLobe::memory_bytes() const {
     size_t b = 0;
-    for (const auto &p : m_patches) b += sizeof(MultiLobeBrdf) + p->nodes().size() * sizeof(NdfNode);
+    for (const auto &p : m_patches) b += sizeof(MultiLobeBrdf) + p->node_bytes();
     return b;
 }
 

@@ -129,7 +129,7 @@ std::vector<PatchNdf> lobes_from_image(const Image &img, int lobes, const std::s
 
 /// The spatially varying multi-lobe BRDF f'_low of one level (eq. 11), a Material evaluated
 /// in the MACRO frame (local z = the macro normal): patch (I, J) = floor(frac(uv) (W/F, H/F)).
-/// One MultiLobeBrdf per patch, built once (≈ nodes · 56 bytes per patch).
+/// One MultiLobeBrdf per patch, built once (≈ nodes · 76 bytes per patch).
 class SvMultiLobe final : public Material {
 public:
     SvMultiLobe(std::shared_ptr<const Material> base, const std::vector<PatchNdf> &ndf, int width, int height,

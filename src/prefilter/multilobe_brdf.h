@@ -187,6 +187,8 @@ public:
     void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
 
     const std::vector<NdfNode> &nodes() const { return m_nodes; }
+    /// Bytes of node data: the nodes and pick_node's compact copy of them.
+    size_t node_bytes() const { return m_nodes.size() * sizeof(NdfNode) + m_blocks.size() * sizeof(NodeBlock); }
     /// Node k's share for the viewer wo (0 when ω_k faces away): the weights of eval's sum.
     double node_weight(const NdfNode &k, const Vec3 &wo) const {
         const float z = k.frame.to_local(wo).z;
