@@ -38,6 +38,10 @@
 // also inside the path tracer's MIS, which pairs exactly these pdfs). 1 base evaluation
 // instead of N, at the price of more variance per sample. eval and pdf stay exact, and so does
 // everything without u_eval (`meso material`, the χ² tests): there sample's pdf = pdf().
+// Cost of one shading sample (eval_pdf + sample) on a flat surface, relative to the base's
+// (build/bench/meso_microbench, docs/performance.md): "stochastic" 1.6x for a rough conductor,
+// 3x for rough plastic, 20x for a Lambertian base (one S lookup costs more than that base);
+// "quadrature" 27-90x (N base evaluations per pass).
 //
 // Base material. By default, the one the model was made with (manifest "input"."base", a
 // meso material object); relative file names inside it (textures) resolve against the
@@ -212,26 +216,29 @@ public:
         const MultiLobeBrdf &f = m.f->patch(l.c.uv);
         BSDFSample bs;
         const bool one_node = stochastic(ctx);
-        MultiLobeBrdf::NodePick pick;
-        if (!(one_node ? f.sample_stochastic(l.c, mo, u_lobe, u, bs, &pick) : f.sample(l.c, mo, u_lobe, u, bs)))
+        if (!(one_node ? f.sample_stochastic(l.c, mo, u_lobe, u, bs) : f.sample(l.c, mo, u_lobe, u, bs)))
             return false;
-        // Back to the shading frame; the pdf and eval are then taken at the direction the
-        // integrator will see (after the rotation's round-off), so that sample, pdf and eval
-        // agree exactly.
+        // Back to the shading frame.
         const Vec3 wi = l.rotated ? normalize(ctx.frame.to_local(l.macro.to_world(bs.wi))) : bs.wi;
         if (!(wi.z > 0.f)) return false;
         const Vec3 mi = l.to_macro(ctx, wi);
         if (!(mi.z > 0.f)) return false;
-        // Not rotated: bs is exact at mi (weight = f'_low / pdf, or the one-node estimate / pdf_k);
-        // rotated: one eval_pdf pass, or node k's value and pdf at mi.
+        // Not rotated: bs is exact at mi (weight = f'_low / pdf, or the one-node estimate / pdf_k).
+        // Rotated, quadrature: one eval_pdf pass at the direction the integrator will see (after
+        // the rotation's round-off), so that sample, pdf and eval agree exactly. Rotated,
+        // stochastic: the base's record, as in MultiLobeBrdf::sample_stochastic (node k's value
+        // and pdf at the direction before the rotations round it).
         float p = bs.pdf;
-        Spectrum e = bs.weight * bs.pdf;
-        if (l.rotated) e = one_node ? f.eval_pdf_node(l.c, pick, mo, mi, &p) : f.eval_pdf(l.c, mo, mi, &p);
+        Spectrum w = bs.weight;
+        if (l.rotated && !one_node) {
+            const Spectrum e = f.eval_pdf(l.c, mo, mi, &p);
+            w = Spectrum(e.r / p, e.g / p, e.b / p);
+        }
         if (!(p > 0.f) || !std::isfinite(p)) return false;
-        if (!e.is_black()) e = scaled(l, e, mo, mi);
+        if (!w.is_black()) w = scaled(l, w, mo, mi);
         out.wi = wi;
         out.pdf = p;
-        out.weight = Spectrum(e.r / p, e.g / p, e.b / p);
+        out.weight = w;
         out.eta = 1.f;
         out.flags = bs.flags;
         return true;

@@ -184,7 +184,10 @@ TEST(PrefilteredStochastic, SampleWeightsAreUnbiased) {
             const double md = sd[c] / N, sed = stderr_of(sd[c], sd2[c]);
             const double ms = ss[c] / N, ses = stderr_of(ss[c], ss2[c]);
             const double me = se[c] / N, see = stderr_of(se[c], se2[c]);
-            EXPECT_LE(std::abs(md), 4.0 * sed + 1e-12) << idx << " channel " << c;
+            // + 2 float ulps of the mean: with the Lambertian base every one-node weight is the one
+            // float Σ R (the base's sample weight R times Σ(wo)), so its rounding does not average
+            // out as that of the exact weights (a ratio of two node sums per sample) does.
+            EXPECT_LE(std::abs(md), 4.0 * sed + 0x1p-22 * std::abs(ms)) << idx << " channel " << c;
             EXPECT_LE(std::abs(ms - me), 4.0 * std::hypot(ses, see)) << idx << " channel " << c;
             if (c == 1)
                 std::printf("setup %d (θo %.0f%s): E[w h] stochastic %.5f ± %.5f, exact (independent) %.5f ± %.5f, "

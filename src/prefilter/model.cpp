@@ -60,16 +60,6 @@ Vec3 square_to_hemisphere(Vec2 u) {
     return Vec3(float(st * d.x / rho), float(st * d.y / rho), float(std::cos(theta)));
 }
 
-namespace {
-/// Bin-centre interpolation along one axis of N bins: lower index and weight of the upper.
-inline void axis_lerp(float s, int N, int &i0, int &i1, float &t) {
-    const float x = std::clamp(s * float(N) - 0.5f, 0.f, float(N - 1));
-    i0 = std::min(int(x), N - 1);
-    i1 = std::min(i0 + 1, N - 1);
-    t = x - float(i0);
-}
-}  // namespace
-
 Spectrum ScalingTables::S_bin(int bi, int bo) const {
     const int ix = bi % N, iy = bi / N, ox = bo % N, oy = bo / N;
     return S.rgb(ox * N + ix, oy * N + iy);
@@ -78,44 +68,6 @@ Spectrum ScalingTables::S_bin(int bi, int bo) const {
 void ScalingTables::set_S_bin(int bi, int bo, Spectrum s) {
     const int ix = bi % N, iy = bi / N, ox = bo % N, oy = bo / N;
     S.set_rgb(ox * N + ix, oy * N + iy, s);
-}
-
-Spectrum ScalingTables::eval_T(Vec2 x) const {
-    if (M <= 0) return Spectrum(1.f);
-    auto wrapi = [&](int i) { return ((i % M) + M) % M; };
-    double u = double(x.x) - std::floor(double(x.x)), v = double(x.y) - std::floor(double(x.y));
-    const double fx = u * M - 0.5, fy = v * M - 0.5;
-    const int x0 = int(std::floor(fx)), y0 = int(std::floor(fy));
-    const float tx = float(fx - x0), ty = float(fy - y0);
-    const Spectrum a = T.rgb(wrapi(x0), wrapi(y0)), b = T.rgb(wrapi(x0 + 1), wrapi(y0));
-    const Spectrum c = T.rgb(wrapi(x0), wrapi(y0 + 1)), d = T.rgb(wrapi(x0 + 1), wrapi(y0 + 1));
-    return (a * (1.f - tx) + b * tx) * (1.f - ty) + (c * (1.f - tx) + d * tx) * ty;
-}
-
-Spectrum ScalingTables::eval_S(Vec3 wi, Vec3 wo) const {
-    if (N <= 0) return Spectrum(1.f);
-    const Vec2 si = hemisphere_to_square(wi), so = hemisphere_to_square(wo);
-    int ix[2], iy[2], ox[2], oy[2];
-    float tix, tiy, tox, toy;
-    axis_lerp(si.x, N, ix[0], ix[1], tix);
-    axis_lerp(si.y, N, iy[0], iy[1], tiy);
-    axis_lerp(so.x, N, ox[0], ox[1], tox);
-    axis_lerp(so.y, N, oy[0], oy[1], toy);
-    const float wix[2] = {1.f - tix, tix}, wiy[2] = {1.f - tiy, tiy}, wox[2] = {1.f - tox, tox},
-                woy[2] = {1.f - toy, toy};
-    Spectrum s(0.f);
-    for (int a = 0; a < 2; ++a)
-        for (int b = 0; b < 2; ++b) {
-            const float wo_w = wox[a] * woy[b];
-            if (wo_w == 0.f) continue;
-            for (int c = 0; c < 2; ++c)
-                for (int d = 0; d < 2; ++d) {
-                    const float w = wo_w * wix[c] * wiy[d];
-                    if (w == 0.f) continue;
-                    s += S.rgb(ox[a] * N + ix[c], oy[b] * N + iy[d]) * w;
-                }
-        }
-    return s;
 }
 
 Image lobes_to_image(const std::vector<PatchNdf> &ndf, int width, int height, int lobes) {
@@ -347,7 +299,7 @@ std::string SvMultiLobe::to_string() const {
 }
 size_t SvMultiLobe::memory_bytes() const {
     size_t b = 0;
-    for (const auto &p : m_patches) b += sizeof(MultiLobeBrdf) + p->nodes().size() * sizeof(NdfNode);
+    for (const auto &p : m_patches) b += sizeof(MultiLobeBrdf) + p->node_bytes();
     return b;
 }
 

@@ -62,6 +62,10 @@ Vec2 concentric_disk_to_square(Vec2 d);
 /// A hemisphere direction (z >= 0, normalised here; z < 0 is mirrored up) to its square
 /// coordinates (concentric, equidistant in θ: see the header).
 Vec2 hemisphere_to_square(Vec3 w);
+/// hemisphere_to_square in float with a polynomial arctangent (no atan2): the mapping of
+/// ScalingTables::eval_S (prefilter/table_lookup.cpp), within 1e-6 of hemisphere_to_square
+/// (tested). Binning in the pipeline keeps the exact one.
+Vec2 hemisphere_to_square_fast(Vec3 w);
 /// Square coordinates to the hemisphere (the inverse of hemisphere_to_square).
 Vec3 square_to_hemisphere(Vec2 u);
 
@@ -75,7 +79,8 @@ struct ScalingTables {
     /// S at bin indices (ωi bin, ωo bin), each b = by N + bx.
     Spectrum S_bin(int bi, int bo) const;
     void set_S_bin(int bi, int bo, Spectrum s);
-    /// T at map position x ∈ [0,1)² (wrapped): bilinear between patch centres, periodic.
+    /// T at map position x ∈ [0,1)² (wrapped): bilinear between patch centres, periodic
+    /// (prefilter/table_lookup.cpp, like eval_S).
     Spectrum eval_T(Vec2 x) const;
     /// S(ωi, ωo), macro frame: quadrilinear between bin centres, clamped at the border.
     Spectrum eval_S(Vec3 wi, Vec3 wo) const;
@@ -124,7 +129,7 @@ std::vector<PatchNdf> lobes_from_image(const Image &img, int lobes, const std::s
 
 /// The spatially varying multi-lobe BRDF f'_low of one level (eq. 11), a Material evaluated
 /// in the MACRO frame (local z = the macro normal): patch (I, J) = floor(frac(uv) (W/F, H/F)).
-/// One MultiLobeBrdf per patch, built once (≈ nodes · 56 bytes per patch).
+/// One MultiLobeBrdf per patch, built once (≈ nodes · 76 bytes per patch).
 class SvMultiLobe final : public Material {
 public:
     SvMultiLobe(std::shared_ptr<const Material> base, const std::vector<PatchNdf> &ndf, int width, int height,

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include "core/error.h"
 #include "core/quadrature.h"
 #include "filter/vmf.h"
@@ -19,13 +21,14 @@ uint64_t next_instance_id() {
     return counter.fetch_add(1, std::memory_order_relaxed);
 }
 
-/// pick_node's per-thread record of the nodes visible from the last (instance, wo).
+
+/// pick_node's per-thread record for the last (instance, wo): each node's weight (0 where it
+/// faces away from wo) and the sums of those over blocks of kPickBlock consecutive nodes.
 struct PickCache {
     uint64_t owner = 0;  ///< MultiLobeBrdf::m_id; 0: empty
     Vec3 wo;
     double total = 0.0;
-    std::vector<uint32_t> eligible;
-    std::vector<double> ew;
+    std::vector<double> w, block;
 };
 }
 
@@ -99,6 +102,16 @@ MultiLobeBrdf::MultiLobeBrdf(std::shared_ptr<const Material> base, const PatchNd
                 m_projected += c * dz;
             }
         }
+    }
+    // The normals and weights again, by blocks of kPickBlock, for pick_node's pass.
+    // Padded to whole blocks of kPickBlock with zero normals and weights (they face nothing).
+    const size_t padded = (m_nodes.size() + kPickBlock - 1) / kPickBlock * kPickBlock;
+    m_blocks.assign(padded / kPickBlock, NodeBlock{});
+    for (size_t q = 0; q < m_nodes.size(); ++q) {
+        const NdfNode &k = m_nodes[q];
+        NodeBlock &b = m_blocks[q / kPickBlock];
+        const size_t j = q % kPickBlock;
+        b.nx[j] = k.frame.n.x, b.ny[j] = k.frame.n.y, b.nz[j] = k.frame.n.z, b.c[j] = k.weight;
     }
 }
 
@@ -181,47 +194,103 @@ float MultiLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &
     return total > 0.0 ? float(sum / total) : 0.f;
 }
 
+namespace {
+// Four floats, with the GCC / Clang vector extension (SSE on x86-64, NEON on ARM; plain code
+// elsewhere): pick_weights' pass over the nodes, four at a time.
+typedef float F4 __attribute__((vector_size(16)));
+typedef int32_t I4 __attribute__((vector_size(16)));
+typedef double D4 __attribute__((vector_size(32)));
+typedef int64_t L4 __attribute__((vector_size(32)));
+inline F4 load4(const float *p) {
+    F4 v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
+}
+}  // namespace
+
+void MultiLobeBrdf::pick_weights(const Vec3 &wo, double *w, double *block) const {
+    // F_k wo .z = dot(wo, ω_k) as Frame::to_local computes it (the test of pdf(), lane by lane
+    // the same float expression), four nodes at a time, and the weights (double, as weight()
+    // computes them) masked by it, without branches (whether a node faces wo is a coin flip for
+    // a branch predictor). The arrays are padded to whole blocks with zero normals, which face
+    // nothing. Everything is read into locals first: stores to w must not make the compiler
+    // reload them.
+    static_assert(kPickBlock == 8, "a block is two vectors of four");
+    const size_t nb = m_blocks.size();
+    const NodeBlock *blocks = m_blocks.data();
+    const float ox = wo.x, oy = wo.y, oz = wo.z;
+    const bool projected = m_opt.projected_area;
+    const F4 zero = {0.f, 0.f, 0.f, 0.f};
+    for (size_t b = 0; b < nb; ++b) {
+        const NodeBlock &nb_ = blocks[b];
+        D4 wq[2];
+        for (size_t h = 0; h < 2; ++h) {
+            const size_t j = 4 * h;
+            const F4 z = ox * load4(nb_.nx + j) + oy * load4(nb_.ny + j) + oz * load4(nb_.nz + j);
+            const L4 facing = __builtin_convertvector(z > zero, L4);  // all ones where the node faces wo
+            D4 c;
+            std::memcpy(&c, nb_.c + j, sizeof c);
+            // weight(): c_k, or c_k <ω_k, ωo> / <ω_g, ωo> with projected_area
+            if (projected) c = c * __builtin_convertvector(z, D4) / double(oz);
+            wq[h] = (D4)((L4)c & facing);
+            std::memcpy(w + b * kPickBlock + j, &wq[h], sizeof wq[h]);
+        }
+        const D4 s = wq[0] + wq[1];
+        block[b] = (s[0] + s[1]) + (s[2] + s[3]);
+    }
+}
+
 bool MultiLobeBrdf::pick_node(const Vec3 &wo, double u, NodePick &pick) const {
     pick = NodePick();
     if (!(wo.z > 0.f)) return false;
-    // Node choice with probability c_k [F_k wo .z > 0] / Σ: one pass records the eligible
-    // nodes (the test of pdf()), then the choice scans the recorded weights. The record is
-    // reused while the instance and wo (bit for bit) stay the same.
+    // Node choice with probability P_k = w_k / Σ, w_k = weight(k) [F_k wo .z > 0], by the
+    // running sum of the w_k in node order: the first k with target = u Σ < Σ_{j<=k} w_j (a
+    // node facing away has w_k = 0 and is never the first). Two levels (the block where the
+    // running sum of block sums passes target, then the node within it), so that the O(N)
+    // pass has no chain of dependent additions; it equals the plain running sum up to double
+    // rounding. The weights are reused while the instance and wo (bit for bit) stay the same
+    // (next-event estimation and BSDF sampling at one vertex).
     thread_local PickCache cache;
-    std::vector<uint32_t> &eligible = cache.eligible;
-    std::vector<double> &ew = cache.ew;
+    const size_t n = m_nodes.size(), nb = m_blocks.size();
     if (cache.owner != m_id || cache.wo.x != wo.x || cache.wo.y != wo.y || cache.wo.z != wo.z) {
-        eligible.clear();
-        ew.clear();
+        if (cache.w.size() < nb * kPickBlock) cache.w.resize(nb * kPickBlock), cache.block.resize(nb);
+        pick_weights(wo, cache.w.data(), cache.block.data());
         double sum = 0.0;
-        for (size_t q = 0; q < m_nodes.size(); ++q)
-            if (const float z = m_nodes[q].frame.to_local(wo).z; z > 0.f) {
-                eligible.push_back(uint32_t(q));
-                ew.push_back(weight(m_nodes[q], z, wo.z));
-                sum += ew.back();
-            }
+        for (size_t b = 0; b < nb; ++b) sum += cache.block[b];
+        cache.total = sum;
         cache.owner = m_id;
         cache.wo = wo;
-        cache.total = sum;
     }
+    const double *w = cache.w.data(), *block = cache.block.data();
     const double total = cache.total;
     if (!(total > 0.0)) return false;
     const double target = u * total;
-    const NdfNode *chosen = nullptr;
-    double cum = 0.0, u_rescaled = 0.0;
-    for (size_t e = 0; e < eligible.size(); ++e) {
-        const double w = ew[e];
-        chosen = &m_nodes[eligible[e]];
-        if (target < cum + w) {
-            u_rescaled = (target - cum) / w;
+    double cum = 0.0;
+    size_t b = 0;
+    for (; b + 1 < nb && !(target < cum + block[b]); ++b) cum += block[b];
+    size_t chosen = n;
+    double u_rescaled = 1.0;
+    for (size_t q = b * kPickBlock; q < (b + 1) * kPickBlock; ++q) {
+        if (target < cum + w[q]) {  // w[q] > 0 here: target >= cum
+            chosen = q;
+            u_rescaled = (target - cum) / w[q];
             break;
         }
-        cum += w;
-        u_rescaled = 1.0;  // rounding: falls through to the last eligible node
+        cum += w[q];
     }
-    if (!chosen) return false;
-    pick.node = chosen;
-    pick.lo = chosen->frame.to_local(wo);
+    // Rounding (block sums add in another order) or u >= 1 left target beyond the block: the last node
+    // facing wo in it or before it; u_rescaled 1.
+    if (chosen == n)
+        for (size_t q = (b + 1) * kPickBlock; chosen == n && q-- > 0;)
+            if (w[q] > 0.0) chosen = q;
+    if (chosen >= n) return false;
+    pick.node = &m_nodes[chosen];
+    // The node's frame from its normal in the scan's arrays (as the constructor built it:
+    // Frame(ω_k)), so that a pick touches no NdfNode.
+    const NodeBlock &cb = m_blocks[chosen / kPickBlock];
+    const size_t cj = chosen % kPickBlock;
+    pick.frame = Frame(Vec3(cb.nx[cj], cb.ny[cj], cb.nz[cj]));
+    pick.lo = pick.frame.to_local(wo);
     pick.total = total;
     pick.u_rescaled = u_rescaled;
     return true;
@@ -241,14 +310,15 @@ bool sample_record(const Vec3 &wi, const Spectrum &f, float p, uint32_t flags, B
 }  // namespace
 
 bool MultiLobeBrdf::sample_base_in_node(const ShadingContext &ctx, const NodePick &pick, Vec2 u, Vec3 &wi,
-                                        uint32_t &flags) const {
+                                        uint32_t &flags, BSDFSample *base) const {
     // The remaining fraction of u_lobe is handed to the base for its own lobe choice.
     const float ub = std::min(std::max(float(pick.u_rescaled), 0.f), 0x1.fffffep-1f);
     BSDFSample bs;
     if (!m_base->sample(ctx, pick.lo, ub, u, bs)) return false;
     if (bs.flags & BSDF_Delta) return false;  // excluded in the constructor; defensive
-    wi = normalize(pick.node->frame.to_world(bs.wi));
+    wi = normalize(pick.frame.to_world(bs.wi));
     flags = bs.flags;
+    if (base) *base = bs;
     return wi.z > 0.f;  // below the macro horizon: the path ends (pdf excludes it)
 }
 
@@ -267,7 +337,7 @@ Spectrum MultiLobeBrdf::eval_pdf_node(const ShadingContext &ctx, const NodePick 
                                       const Vec3 &wi, float *pdf_out) const {
     if (pdf_out) *pdf_out = 0.f;
     if (!pick.node || !(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
-    const Vec3 li = pick.node->frame.to_local(wi);
+    const Vec3 li = pick.frame.to_local(wi);
     if (!(li.z > 0.f)) return Spectrum(0.f);  // g_k = 0 (and pdf_k = 0: reflection-only base)
     const Spectrum f = m_base->eval_pdf(ctx, pick.lo, li, pdf_out);  // g_k = f · <ω_k, ωi>
     const double s = pick.total;  // c_k g_k / P_k = Σ g_k (weight() of the choice in both modes)
@@ -288,13 +358,19 @@ bool MultiLobeBrdf::sample_stochastic(const ShadingContext &ctx, const Vec3 &wo,
     NodePick pick;
     Vec3 wi;
     uint32_t flags = 0;
+    BSDFSample bs;
     // The same direction as sample() for the same (u_lobe, u).
-    if (!pick_node(wo, double(u_lobe), pick) || !sample_base_in_node(ctx, pick, u, wi, flags)) return false;
-    // Node k's value and pdf at the direction returned (after the frame's round-off), so that
-    // weight = eval_pdf_node / its pdf exactly, as next-event estimation would see it.
-    float p = 0.f;
-    const Spectrum f = eval_pdf_node(ctx, pick, wo, wi, &p);
-    if (!sample_record(wi, f, p, flags, out)) return false;
+    if (!pick_node(wo, double(u_lobe), pick) || !sample_base_in_node(ctx, pick, u, wi, flags, &bs)) return false;
+    // Node k's value and pdf are the base's own sample record (pdf_k and g_k / pdf_k at the
+    // direction in the node's frame): eval_pdf_node at wi would give them again up to the
+    // rounding of the rotation out of the node's frame, for one more base evaluation.
+    if (!(bs.pdf > 0.f) || !std::isfinite(bs.pdf)) return false;
+    const double s = pick.total;  // Σ g_k / pdf_k
+    out.wi = wi;
+    out.pdf = bs.pdf;
+    out.weight = Spectrum(float(s * bs.weight.r), float(s * bs.weight.g), float(s * bs.weight.b));
+    out.eta = 1.f;
+    out.flags = flags;
     if (pick_out) *pick_out = pick;
     return true;
 }

@@ -56,7 +56,10 @@
 // without delta lobes (smooth conductor, smooth plastic coat: rejected with MesoError).
 //
 // Cost: eval and pdf are O(N) base evaluations, N = Σ kept nodes ≤ lobes · n_u · n_φ (6 · 4 · 6 =
-// 144 by default); sample is O(N) for the node choice plus pdf and eval (3 passes).
+// 144 by default); sample is O(N) for the node choice plus one eval_pdf pass. The node choice's
+// pass over the nodes (pick_node) reads only a compact copy of their normals and weights, four
+// nodes at a time, and is shared by every call with the same wo (next-event estimation and BSDF
+// sampling at one vertex).
 //
 // Stochastic one-node estimator (eval_pdf_stochastic, sample_stochastic; the `prefiltered`
 // material's "estimator": "stochastic"). With g_k(ωo, ωi) = base.eval(F_k ωo, F_k ωi),
@@ -69,8 +72,8 @@
 // pdf_k(ωi) = base.pdf(F_k ωo, F_k ωi), NOT the mixture. sample_stochastic draws k with u_lobe
 // (its leftover goes to the base's lobe choice, as in sample()), samples the base in node k's
 // frame (the same directions as sample(): pdf() stays the exact density of the directions) and
-// returns pdf = pdf_k(ωi), weight = Σ(ωo) g_k(ωo, ωi) / pdf_k(ωi): 1 base sample + 1 base eval_pdf,
-// no pass over the nodes beyond the choice. Given the direction, the node was k with probability
+// returns pdf = pdf_k(ωi), weight = Σ(ωo) g_k(ωo, ωi) / pdf_k(ωi), both from the base's own sample
+// record: 1 base sample, no base evaluation and no pass over the nodes beyond the choice. Given the direction, the node was k with probability
 // P_k pdf_k(ωi) / pdf(ωi), so E[weight | ωi] = Σ_k w_k g_k / pdf(ωi) = eval / pdf: the exact
 // weight is the conditional mean of the stochastic one.
 //
@@ -149,6 +152,7 @@ public:
     /// (the choice of sample()), for the stochastic estimator.
     struct NodePick {
         const NdfNode *node = nullptr;
+        Frame frame;               ///< node->frame
         Vec3 lo;                   ///< wo in the node's frame (lo.z > 0)
         double total = 0.0;        ///< Σ(wo) = Σ_k weight(k) over the nodes visible from wo
         double u_rescaled = 0.0;   ///< where u fell inside the node's interval, in [0, 1]
@@ -160,8 +164,10 @@ public:
     /// for the O(N) pass once.
     bool pick_node(const Vec3 &wo, double u, NodePick &pick) const;
     /// Samples the base in the picked node's frame (the leftover of u_lobe picks the base's own
-    /// lobe): wi in the macro frame and the base's flags; false below either horizon.
-    bool sample_base_in_node(const ShadingContext &ctx, const NodePick &pick, Vec2 u, Vec3 &wi, uint32_t &flags) const;
+    /// lobe): wi in the macro frame and the base's flags (and, when base is not null, the base's
+    /// sample record in the node's frame); false below either horizon.
+    bool sample_base_in_node(const ShadingContext &ctx, const NodePick &pick, Vec2 u, Vec3 &wi, uint32_t &flags,
+                             BSDFSample *base = nullptr) const;
     /// Σ(wo) · g_k(wo, wi) for the picked node (the one-node estimate of eval) and, when pdf is not
     /// null, pdf_k(wi) = base.pdf in the node's frame into *pdf (0 below either horizon).
     Spectrum eval_pdf_node(const ShadingContext &ctx, const NodePick &pick, const Vec3 &wo, const Vec3 &wi,
@@ -170,7 +176,9 @@ public:
     Spectrum eval_pdf_stochastic(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, double u,
                                  float *pdf) const;
     /// The directions of sample() (same u_lobe, u), with out.pdf = pdf_k(wi) of the chosen node and
-    /// out.weight = Σ(wo) g_k(wo, wi) / pdf_k(wi); the chosen node into *pick when not null.
+    /// out.weight = Σ(wo) g_k(wo, wi) / pdf_k(wi), both from the base's sample record (at the
+    /// direction in the node's frame, before the rotation to the macro frame rounds it); the
+    /// chosen node into *pick when not null.
     bool sample_stochastic(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out,
                            NodePick *pick = nullptr) const;
 
@@ -179,6 +187,8 @@ public:
     void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
 
     const std::vector<NdfNode> &nodes() const { return m_nodes; }
+    /// Bytes of node data: the nodes and pick_node's compact copy of them.
+    size_t node_bytes() const { return m_nodes.size() * sizeof(NdfNode) + m_blocks.size() * sizeof(NodeBlock); }
     /// Node k's share for the viewer wo (0 when ω_k faces away): the weights of eval's sum.
     double node_weight(const NdfNode &k, const Vec3 &wo) const {
         const float z = k.frame.to_local(wo).z;
@@ -194,11 +204,23 @@ private:
     double weight(const NdfNode &k, float lo_z, float wo_z) const {
         return m_opt.projected_area ? k.weight * double(lo_z) / double(wo_z) : k.weight;
     }
+    /// Nodes per block of pick_node's two-level running sum (block sums in pick_weights).
+    static constexpr size_t kPickBlock = 8;
+    /// w[k] = weight(k) where node k faces wo, else 0, for the padded node arrays, and block[b] =
+    /// the sum of w over block b (pick_node's pass over the nodes).
+    void pick_weights(const Vec3 &wo, double *w, double *block) const;
     /// Σ_k c_k [F_k wo .z > 0]: the normaliser of the node choice P_k(wo).
     double selection_total(const Vec3 &wo) const;
 
     std::shared_ptr<const Material> m_base;
     std::vector<NdfNode> m_nodes;
+    /// m_nodes[k].frame.n by axis and m_nodes[k].weight for k in a block of kPickBlock nodes
+    /// (pick_node's pass reads these only), padded with zeros (normals that face nothing).
+    struct NodeBlock {
+        float nx[kPickBlock] = {}, ny[kPickBlock] = {}, nz[kPickBlock] = {};
+        double c[kPickBlock] = {};
+    };
+    std::vector<NodeBlock> m_blocks;
     QuadratureOptions m_opt;
     size_t m_lobes = 0;
     double m_total = 0.0, m_projected = 0.0;

@@ -1,0 +1,221 @@
+// meso_microbench: the cost of one shading sample per material (issue 21 item 3: "per shading
+// sample, eval + sample + pdf of `prefiltered` costs at most 1.5x the base material's on the
+// same flat surface").
+//
+// One shading sample is what a path vertex asks of its material: eval_pdf(wo, wi_light) (the
+// next-event estimate) + sample(wo, u_lobe, u) (the continuation) + pdf(wo, wi_sampled)
+// ("shade/..."); "vertex/..." leaves out the pdf call, which the path tracer does not make
+// (sample returns the pdf). Every benchmark walks the same fixed set of 4096 inputs (wo
+// cosine-distributed, wi_light uniform on the hemisphere, uv uniform over the map, uniforms for
+// the lobe choice, the direction and u_eval), on a flat surface whose shading frame is the macro
+// frame (no rotation). Materials:
+//   <base>                             the base BRDF alone: diffuse, conductor (rough, Beckmann),
+//                                      plastic (rough GGX coat)
+//   prefiltered:<base>:quadrature      `prefiltered` on a model that `meso prefilter`'s pipeline
+//   prefiltered:<base>:stochastic      builds here with that base (fbm map 128², level x8 =
+//                                      16 x 16 patches, 6 lobes, 3 x 4 quadrature nodes per lobe,
+//                                      N = 15, M = 4; few paths: the tables' noise does not
+//                                      change the cost)
+// uv: "--uv=random" (default) puts every input on a random texel of the map, so the model's
+// per-texel data (≈ 1.5 KB of node weights and normals) and the S table (0.6 MB) are mostly out
+// of the nearest caches, as for incoherent secondary rays; "--uv=one" keeps all on one texel
+// (the S lookups still follow the random directions), a bound for coherent camera rays.
+// At the end a table prints the median CPU ns per shading sample and the ratio prefiltered /
+// base, from the same run. Defaults (overridable on the command line): 5 repetitions, randomly
+// interleaved across benchmarks (the machine's speed drifts; medians compare like with like),
+// aggregates only. Not run by CTest.
+#include <benchmark/benchmark.h>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+#include <unistd.h>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include "bsdf/material.h"
+#include "core/math.h"
+#include "core/properties.h"
+#include "core/registry.h"
+#include "prefilter/pipeline.h"
+
+namespace {
+
+using namespace meso;
+namespace fs = std::filesystem;
+
+struct Input {
+    Vec3 wo, wl;
+    Vec2 uv, u;
+    float u_lobe, u_eval;
+};
+
+constexpr size_t kInputs = 4096;  // a power of two
+bool g_one_texel = false;         // --uv=one: every input on one texel (see the header)
+
+const std::vector<Input> &inputs() {
+    static const std::vector<Input> in = [] {
+        std::mt19937 rng(21);
+        std::uniform_real_distribution<float> U(0.f, 1.f);
+        auto u01 = [&] { return std::min(U(rng), 0x1.fffffep-1f); };
+        std::vector<Input> v(kInputs);
+        for (Input &x : v) {
+            // wo cosine-distributed (what a camera sees of a plane, roughly), wl uniform.
+            const float r = std::sqrt(u01()), phi = 2.f * Pi * u01();
+            x.wo = normalize(Vec3(r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(1e-4f, 1.f - r * r))));
+            const float z = std::max(1e-3f, u01()), s = std::sqrt(1.f - z * z), p2 = 2.f * Pi * u01();
+            x.wl = Vec3(s * std::cos(p2), s * std::sin(p2), z);
+            x.uv = Vec2(u01(), u01());
+            if (g_one_texel) x.uv = Vec2(0.3f, 0.6f);
+            x.u = Vec2(u01(), u01());
+            x.u_lobe = u01();
+            x.u_eval = u01();
+        }
+        return v;
+    }();
+    return in;
+}
+
+std::shared_ptr<Material> material_from_json(const nlohmann::json &j) {
+    return create_material(Properties(j, "material", std::make_shared<LoadContext>()));
+}
+
+struct Base {
+    std::string name;
+    const char *json;
+};
+
+const std::vector<Base> kBases = {
+    {"diffuse", R"({"type": "diffuse", "reflectance": [0.75, 0.45, 0.3]})"},
+    {"conductor", R"({"type": "conductor", "material": "Au", "distribution": "beckmann", "alpha": 0.25})"},
+    {"plastic", R"({"type": "plastic", "diffuse_reflectance": [0.5, 0.2, 0.1], "distribution": "ggx", "alpha": 0.2})"},
+};
+constexpr int kFactor = 8;
+
+/// A small model made by the prefilter pipeline with this base (see the header), written to dir.
+void build_small_model(const Base &b, const std::string &dir) {
+    prefilter::PipelineOptions o;
+    o.generator = "fbm";
+    o.generator_params = {{"size", "128"}, {"amplitude", "0.03"}, {"frequency", "4"}};
+    o.base = b.json;
+    o.scales = {kFactor};
+    o.M = 4;
+    o.N = 15;
+    o.interreflections = false;
+    o.paths = o.low_paths = 4;
+    o.quiet = true;
+    prefilter::build_model(o).save(dir);
+}
+
+/// One shading sample per iteration (see the header); with_pdf adds the pdf of the sampled direction.
+void shading_sample(benchmark::State &state, const Material *m, bool with_pdf) {
+    const std::vector<Input> &in = inputs();
+    ShadingContext ctx;  // flat: identity frame, right-handed uv (dp/du = s, dp/dv = t)
+    ctx.dpdu = Vec3(1.f, 0.f, 0.f);
+    ctx.dpdv = Vec3(0.f, 1.f, 0.f);
+    size_t i = 0;
+    for (auto _ : state) {
+        const Input &x = in[i];
+        i = (i + 1) & (kInputs - 1);
+        ctx.uv = x.uv;
+        ctx.u_eval = x.u_eval;
+        float p = 0.f;
+        Spectrum f = m->eval_pdf(ctx, x.wo, x.wl, &p);
+        BSDFSample bs;
+        const bool ok = m->sample(ctx, x.wo, x.u_lobe, x.u, bs);
+        float q = ok && with_pdf ? m->pdf(ctx, x.wo, bs.wi) : 0.f;
+        benchmark::DoNotOptimize(f);
+        benchmark::DoNotOptimize(p);
+        benchmark::DoNotOptimize(bs);
+        benchmark::DoNotOptimize(q);
+    }
+}
+
+/// Records the median CPU time of every benchmark (the single run without repetitions).
+class MedianReporter : public benchmark::ConsoleReporter {
+public:
+    std::map<std::string, double> ns;
+    void ReportRuns(const std::vector<Run> &runs) override {
+        ConsoleReporter::ReportRuns(runs);
+        for (const Run &r : runs) {
+            const bool median = r.run_type == Run::RT_Aggregate && r.aggregate_name == "median";
+            const bool single = r.run_type == Run::RT_Iteration && r.repetitions <= 1;
+            if (median || single) ns[r.run_name.function_name] = r.GetAdjustedCPUTime();
+        }
+    }
+};
+
+void print_summary(const std::map<std::string, double> &ns) {
+    std::printf("\nMedian CPU ns per shading sample (ratio = prefiltered / base, same run; uv: %s)\n",
+                g_one_texel ? "one texel" : "a random texel per sample");
+    for (const char *kind : {"shade", "vertex"}) {
+        std::printf("%s: %s\n", kind,
+                    std::string(kind) == "shade" ? "eval_pdf + sample + pdf(sampled)" : "eval_pdf + sample");
+        std::printf("  %-10s %10s %14s %8s %14s %8s\n", "base", "base ns", "quadrature ns", "ratio", "stochastic ns",
+                    "ratio");
+        for (const Base &b : kBases) {
+            auto get = [&](const std::string &n) {
+                auto it = ns.find(fmt::format("{}/{}", kind, n));
+                return it == ns.end() ? -1.0 : it->second;
+            };
+            const double base = get(b.name), q = get("prefiltered:" + b.name + ":quadrature"),
+                         s = get("prefiltered:" + b.name + ":stochastic");
+            if (base < 0) continue;
+            auto ratio = [&](double v) { return v < 0 ? std::string("-") : fmt::format("{:.2f}x", v / base); };
+            std::printf("  %-10s %10.1f %14.1f %8s %14.1f %8s\n", b.name.c_str(), base, q, ratio(q).c_str(), s,
+                        ratio(s).c_str());
+        }
+    }
+}
+
+}  // namespace
+
+int main(int argc, char **argv) {
+    // Defaults first; flags given on the command line come later and win.
+    std::vector<std::string> args = {argv[0], "--benchmark_repetitions=5", "--benchmark_enable_random_interleaving=true",
+                                     "--benchmark_report_aggregates_only=true", "--benchmark_min_time=0.2"};
+    for (int a = 1; a < argc; ++a) {
+        const std::string arg = argv[a];
+        if (arg == "--uv=one" || arg == "--uv=random") g_one_texel = arg == "--uv=one";
+        else args.push_back(arg);
+    }
+    std::vector<char *> argp;
+    for (std::string &s : args) argp.push_back(s.data());
+    int n = int(argp.size());
+    benchmark::Initialize(&n, argp.data());
+    if (benchmark::ReportUnrecognizedArguments(n, argp.data())) return 1;
+
+    const fs::path scratch = fs::temp_directory_path() / fmt::format("meso_microbench_{}", ::getpid());
+    std::vector<std::shared_ptr<Material>> keep;
+    try {
+        for (const Base &b : kBases) {
+            const std::string dir = (scratch / b.name).string();
+            build_small_model(b, dir);
+            std::vector<std::pair<std::string, std::shared_ptr<Material>>> mats = {
+                {b.name, material_from_json(nlohmann::json::parse(b.json))}};
+            for (const char *est : {"quadrature", "stochastic"})
+                mats.push_back({fmt::format("prefiltered:{}:{}", b.name, est),
+                                material_from_json({{"type", "prefiltered"}, {"model", dir}, {"level", kFactor},
+                                                    {"estimator", est}})});
+            for (auto &[name, m] : mats) {
+                keep.push_back(m);
+                for (bool with_pdf : {true, false})
+                    benchmark::RegisterBenchmark(fmt::format("{}/{}", with_pdf ? "shade" : "vertex", name).c_str(),
+                                                 shading_sample, m.get(), with_pdf)
+                        ->Unit(benchmark::kNanosecond);
+            }
+        }
+    } catch (const std::exception &e) {
+        std::fprintf(stderr, "meso_microbench: setup failed: %s\n", e.what());
+        return 1;
+    }
+    MedianReporter rep;
+    benchmark::RunSpecifiedBenchmarks(&rep);
+    print_summary(rep.ns);
+    benchmark::Shutdown();
+    std::error_code ec;
+    fs::remove_all(scratch, ec);
+    return 0;
+}
