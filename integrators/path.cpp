@@ -234,8 +234,10 @@ bool PathIntegrator::scatter(const Scene &scene, RayDifferential &ray, SurfaceIn
     RayDifferential next(si.spawn_ray(wi));
     next.footprint_scale = ray.footprint_scale;
     next.mask = ray.mask;
-    if (m_use_differentials && (bs.flags & BSDF_Delta))
+    if (m_use_differentials && (bs.flags & BSDF_Delta) && ray.has_differentials) {
+        si.compute_normal_derivatives();
         specular_differentials(ray, si, ctx.frame.n, wi, bs.flags, bs.eta, next);
+    }
     ray = next;
     return true;
 }

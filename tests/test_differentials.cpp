@@ -165,6 +165,7 @@ CurvedCase curved_case(const Scene &s, Vec2 film, bool refract, float eta, float
     SurfaceInteraction si;
     EXPECT_TRUE(s.intersect(r, si));
     si.compute_differentials(r, s.camera.get());
+    si.compute_normal_derivatives();
     float eta_rel;
     Vec3 wi = scatter(si, eta_rel);
     RayDifferential next(Ray(si.p, wi));
@@ -291,6 +292,7 @@ TEST(DifferentialsSpecular, RefractionThroughSphereMatchesTracedRays) {
             SurfaceInteraction si;
             EXPECT_TRUE(s->intersect(r, si));
             if (diffs) si.compute_differentials(r, s->camera.get());
+            si.compute_normal_derivatives();
             float e = dot(si.wo, si.ns) > 0.f ? eta : 1.f / eta;
             Vec3 wi = refract_dir(si.wo, si.ns, e);
             RayDifferential next(si.spawn_ray(wi));
@@ -499,6 +501,8 @@ TEST(DifferentialsNormals, SphereAndMeshNormalDerivatives) {
     auto m = load_json_scene("diff_normals_mesh.json", sphere_scene(R"({"type": "uvsphere", "rings": 64, "segments": 128})"));
     SurfaceInteraction mi;
     ASSERT_TRUE(m->intersect(r, mi));
+    EXPECT_EQ(length_squared(mi.dndu), 0.f);  // computed on demand only
+    mi.compute_normal_derivatives();
     // On a unit sphere dn/du = dp/du up to the tessellation's error.
     EXPECT_LT(rel_err(mi.dndu, mi.dpdu), 0.05) << str(mi.dndu) << " " << str(mi.dpdu);
     EXPECT_LT(rel_err(mi.dndv, mi.dpdv), 0.05) << str(mi.dndv) << " " << str(mi.dpdv);

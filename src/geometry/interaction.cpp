@@ -1,4 +1,5 @@
 #include "geometry/interaction.h"
+#include "geometry/shape.h"
 
 namespace meso {
 
@@ -29,6 +30,10 @@ ShadingContext SurfaceInteraction::shading_context(bool two_sided) const {
     ctx.dvdx = dvdx;
     ctx.dvdy = dvdy;
     return ctx;
+}
+
+void SurfaceInteraction::compute_normal_derivatives() {
+    if (shape) shape->fill_normal_derivatives(*this);
 }
 
 Vec3 SurfaceInteraction::offset_origin(Vec3 w) const {

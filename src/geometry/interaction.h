@@ -21,8 +21,10 @@ struct SurfaceInteraction {
     /// ray differentials through curved specular surfaces. Meshes fill them from the
     /// interpolated vertex normals, the analytic sphere with dp/du / r; zero (flat) where a
     /// shape does not set them, e.g. shell-mapped micro-surfaces (bilinear patches whose
-    /// curvature is below the footprint scale anyway).
+    /// curvature is below the footprint scale anyway). Meshes fill them only on
+    /// compute_normal_derivatives() (zero until then).
     Vec3 dndu, dndv;
+    Vec2 bary;        ///< the primitive's barycentrics (Embree's u, v) at the hit
     /// Macro surface for footprints, when the hit is on microgeometry (shell-mapped
     /// displacement): its normal and uv tangents. If n_footprint is non-zero,
     /// compute_differentials transfers the offset rays to this plane and solves with these
@@ -47,6 +49,8 @@ struct SurfaceInteraction {
     /// Always finite: the grazing 1/cos stretch is capped at MaxFootprintStretch and the uv
     /// derivatives are clamped to +-1e8 (0 for degenerate dp/du, dp/dv).
     void compute_differentials(const RayDifferential &ray, const Camera *camera = nullptr);
+    /// Fills dndu, dndv where the shape computes them on demand (meshes); idempotent.
+    void compute_normal_derivatives();
     /// Shading context with frame from ns and dpdu (flipped towards wo when `two_sided`).
     ShadingContext shading_context(bool two_sided) const;
     /// Origin offset along ng to the side of direction d, robust against self-intersection

@@ -102,32 +102,45 @@ void MeshShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float b
         if (length_squared(tg) > 0.f) si.dpdu = normalize(tg) * length(si.dpdu);
     }
 
+    si.bary = Vec2(bu, bv);
+    si.dndu = si.dndv = Vec3();  // fill_normal_derivatives, on demand
+}
+
+void MeshShape::fill_normal_derivatives(SurfaceInteraction &si) const {
     // dn/du, dn/dv of the unit interpolated normal, for ray differentials through curved
-    // specular surfaces. The interpolated normal N is linear in the barycentrics, so for a
-    // tangent vector w = a e1 + b e2 (e1 = p1 - p0, e2 = p2 - p0, least squares) dN = a (n1 - n0)
-    // + b (n2 - n0), and the unit normal changes by (dN - ns (ns.dN)) / |N|. Mapping dp/du and
-    // dp/dv through this keeps dn/du consistent with whatever dp/du ended up (tangent frames
-    // included). Zero without vertex normals (flat) or for zero-area triangles.
+    // specular surfaces (only they read it, so it is computed on demand). The interpolated
+    // normal N is linear in the barycentrics, so for a tangent vector w = a e1 + b e2
+    // (e1 = p1 - p0, e2 = p2 - p0, least squares) dN = a (n1 - n0) + b (n2 - n0), and the unit
+    // normal changes by (dN - ns (ns.dN)) / |N|. Mapping dp/du and dp/dv through this keeps
+    // dn/du consistent with whatever dp/du ended up (tangent frames included). Zero without
+    // vertex normals (flat) or for zero-area triangles.
     si.dndu = si.dndv = Vec3();
-    if (m_has_normals && !degenerate) {
-        const Vec3 n0(v0[3], v0[4], v0[5]), n1(v1[3], v1[4], v1[5]), n2(v2[3], v2[4], v2[5]);
-        const Vec3 N = n0 * b0 + n1 * bu + n2 * bv;
-        const float len = length(N);
-        const Vec3 e1 = p1 - p0, e2 = p2 - p0, dn1 = n1 - n0, dn2 = n2 - n0;
-        const float g11 = dot(e1, e1), g12 = dot(e1, e2), g22 = dot(e2, e2);
-        const float gdet = g11 * g22 - g12 * g12;
-        if (len > 0.f && gdet > 1e-12f * g11 * g22 && std::isfinite(gdet)) {
-            auto dn_along = [&](Vec3 w) {
-                float c1 = dot(e1, w), c2 = dot(e2, w);
-                float a = (g22 * c1 - g12 * c2) / gdet, b = (g11 * c2 - g12 * c1) / gdet;
-                Vec3 dN = dn1 * a + dn2 * b;
-                return (dN - ns * dot(ns, dN)) / len;
-            };
-            si.dndu = dn_along(si.dpdu);
-            si.dndv = dn_along(si.dpdv);
-            if (!is_finite(si.dndu) || !is_finite(si.dndv)) si.dndu = si.dndv = Vec3();
-        }
-    }
+    if (!m_has_normals || si.shape != this) return;
+    const uint32_t prim = si.prim;
+    const float bu = si.bary.x, bv = si.bary.y, b0 = 1.f - bu - bv;
+    const float *v0 = &m_vertices[m_mesh.indices[3 * prim] * Stride];
+    const float *v1 = &m_vertices[m_mesh.indices[3 * prim + 1] * Stride];
+    const float *v2 = &m_vertices[m_mesh.indices[3 * prim + 2] * Stride];
+    const Vec3 p0(v0[0], v0[1], v0[2]), p1(v1[0], v1[1], v1[2]), p2(v2[0], v2[1], v2[2]);
+    const Vec3 n0(v0[3], v0[4], v0[5]), n1(v1[3], v1[4], v1[5]), n2(v2[3], v2[4], v2[5]);
+    const Vec3 N = n0 * b0 + n1 * bu + n2 * bv;
+    const float len = length(N);
+    const Vec3 e1 = p1 - p0, e2 = p2 - p0, dn1 = n1 - n0, dn2 = n2 - n0;
+    const float g11 = dot(e1, e1), g12 = dot(e1, e2), g22 = dot(e2, e2);
+    const float gdet = g11 * g22 - g12 * g12;
+    const float ng_len = length(cross(e1, e2));
+    if (!(ng_len > 0.f) || !std::isfinite(ng_len)) return;  // zero-area triangle
+    if (!(len > 0.f) || !(gdet > 1e-12f * g11 * g22) || !std::isfinite(gdet)) return;
+    const Vec3 ns = si.ns;
+    auto dn_along = [&](Vec3 w) {
+        float c1 = dot(e1, w), c2 = dot(e2, w);
+        float a = (g22 * c1 - g12 * c2) / gdet, b = (g11 * c2 - g12 * c1) / gdet;
+        Vec3 dN = dn1 * a + dn2 * b;
+        return (dN - ns * dot(ns, dN)) / len;
+    };
+    si.dndu = dn_along(si.dpdu);
+    si.dndv = dn_along(si.dpdv);
+    if (!is_finite(si.dndu) || !is_finite(si.dndv)) si.dndu = si.dndv = Vec3();
 }
 
 Vec2 MeshShape::uv_at(uint32_t prim, float bu, float bv) const {

@@ -14,6 +14,7 @@ public:
     RTCGeometry build_embree(RTCDevice device) const override;
     void fill_interaction(const Ray &ray, float t, uint32_t prim, float u, float v,
                           SurfaceInteraction &si) const override;
+    void fill_normal_derivatives(SurfaceInteraction &si) const override;
     float surface_area() const override { return m_area; }
     PositionSample sample_area(float u_prim, Vec2 u) const override;
     size_t primitive_count() const override { return m_mesh.triangle_count(); }

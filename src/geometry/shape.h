@@ -39,6 +39,10 @@ public:
     /// Completes `si` from Embree's hit record (t, prim, barycentrics u, v; ray).
     virtual void fill_interaction(const Ray &ray, float t, uint32_t prim, float u, float v,
                                   SurfaceInteraction &si) const = 0;
+    /// Fills si.dndu, si.dndv where fill_interaction leaves them to be computed on demand
+    /// (meshes: only specular ray differentials read them). Call through
+    /// SurfaceInteraction::compute_normal_derivatives.
+    virtual void fill_normal_derivatives(SurfaceInteraction &si) const { (void)si; }
     virtual float surface_area() const = 0;
     /// Uniform-by-area position sample (u_prim picks the primitive, u the point in it).
     virtual PositionSample sample_area(float u_prim, Vec2 u) const = 0;
