@@ -11,6 +11,9 @@
 
 namespace meso::test {
 
+/// The default shading context (flat surface, no footprint).
+inline const ShadingContext kCtx{};
+
 /// A material from an inline JSON object (errors as from a scene file named "material").
 inline std::shared_ptr<Material> make_material(const std::string &json_text) {
     nlohmann::json j = nlohmann::json::parse(json_text);
