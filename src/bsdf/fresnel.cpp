@@ -1,4 +1,5 @@
 #include "bsdf/fresnel.h"
+#include <smmintrin.h>
 #include <cmath>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
@@ -49,8 +50,38 @@ double fresnel_conductor(double cos_theta_i, double eta, double k) {
 }
 
 Spectrum fresnel_conductor(float cos_theta_i, const Spectrum &eta, const Spectrum &k) {
-    return {float(fresnel_conductor(cos_theta_i, eta.r, k.r)), float(fresnel_conductor(cos_theta_i, eta.g, k.g)),
-            float(fresnel_conductor(cos_theta_i, eta.b, k.b))};
+    // The scalar formula above for the three channels at once, in single precision (SSE4.1,
+    // within x86-64-v2): a path vertex on a metal evaluates it two or three times, and three
+    // double evaluations with their six square roots and nine divisions were a fifth of a
+    // rough conductor's cost. a^2 = (|n^2 - sin^2| + Re(n^2 - sin^2)) / 2 cancels for metals
+    // (Re < 0, |Re| ~ |n^2|), so it is formed as 2 eta^2 k^2 / (|.| - Re) there; the result
+    // then agrees with the complex formula to a few float ulps (test
+    // MaterialAnalytic.ConductorFresnelSpectrumIsAccurate).
+    const float c = std::min(1.f, std::abs(cos_theta_i));
+    const __m128 zero = _mm_setzero_ps(), half = _mm_set1_ps(0.5f), one = _mm_set1_ps(1.f);
+    const __m128 cos2 = _mm_set1_ps(c * c), sin2 = _mm_set1_ps(std::max(0.f, 1.f - c * c));
+    const __m128 e = _mm_setr_ps(eta.r, eta.g, eta.b, 0.f), kk = _mm_setr_ps(k.r, k.g, k.b, 0.f);
+    const __m128 eta2 = _mm_mul_ps(e, e), k2 = _mm_mul_ps(kk, kk);
+    // eta^2 - k^2 - sin^2 as (eta^2 - k^2 - 1) + cos^2: exact for eta = 1, k = 0 at grazing.
+    const __m128 t0 = _mm_add_ps(_mm_sub_ps(_mm_sub_ps(eta2, k2), one), cos2);
+    const __m128 four_e2k2 = _mm_mul_ps(_mm_set1_ps(4.f), _mm_mul_ps(eta2, k2));
+    const __m128 a2b2 = _mm_sqrt_ps(_mm_max_ps(zero, _mm_add_ps(_mm_mul_ps(t0, t0), four_e2k2)));
+    const __m128 a2_direct = _mm_mul_ps(half, _mm_add_ps(a2b2, t0));
+    const __m128 den_a = _mm_sub_ps(a2b2, t0);
+    const __m128 a2_stable = _mm_and_ps(_mm_cmpgt_ps(den_a, zero), _mm_div_ps(_mm_mul_ps(half, four_e2k2), den_a));
+    const __m128 a = _mm_sqrt_ps(_mm_max_ps(zero, _mm_blendv_ps(a2_stable, a2_direct, _mm_cmpge_ps(t0, zero))));
+    const __m128 t1 = _mm_add_ps(a2b2, cos2), t2 = _mm_mul_ps(_mm_set1_ps(2.f * c), a);
+    const __m128 den_s = _mm_add_ps(t1, t2);
+    const __m128 ok_s = _mm_cmpgt_ps(den_s, zero);  // eta = k = 0 at grazing: degenerate, perfect mirror
+    const __m128 Rs = _mm_div_ps(_mm_sub_ps(t1, t2), _mm_blendv_ps(one, den_s, ok_s));
+    const __m128 t3 = _mm_add_ps(_mm_mul_ps(cos2, a2b2), _mm_mul_ps(sin2, sin2)), t4 = _mm_mul_ps(t2, sin2);
+    const __m128 den_p = _mm_add_ps(t3, t4), ok_p = _mm_cmpgt_ps(den_p, zero);
+    const __m128 Rp = _mm_blendv_ps(Rs, _mm_div_ps(_mm_mul_ps(Rs, _mm_sub_ps(t3, t4)), _mm_blendv_ps(one, den_p, ok_p)), ok_p);
+    __m128 R = _mm_min_ps(one, _mm_max_ps(zero, _mm_mul_ps(half, _mm_add_ps(Rs, Rp))));
+    R = _mm_blendv_ps(one, R, ok_s);
+    alignas(16) float out[4];
+    _mm_store_ps(out, R);
+    return {out[0], out[1], out[2]};
 }
 
 /// Double-precision reflectance for the numerical integral below.

@@ -16,6 +16,9 @@
 //                                      16 x 16 patches, 6 lobes, 3 x 4 quadrature nodes per lobe,
 //                                      N = 15, M = 4; few paths: the tables' noise does not
 //                                      change the cost)
+//   the other materials (issue 22: "BSDF sample and eval per material"): rough GGX conductor (the perf scenes'), rough dielectric,
+//   blinnphong, gltf_pbr, leadr, lean, clean, toksvig, vmf (two lobes), normalmap, each at one
+//   typical setting, listed in a second table
 // uv: "--uv=random" (default) puts every input on a random texel of the map, so the model's
 // per-texel data (≈ 1.5 KB of node weights and normals) and the S table (0.6 MB) are mostly out
 // of the nearest caches, as for incoherent secondary rays; "--uv=one" keeps all on one texel
@@ -94,6 +97,21 @@ const std::vector<Base> kBases = {
 };
 constexpr int kFactor = 8;
 
+/// Every other registered material at one typical setting (issue 22's per-material cost).
+const std::vector<Base> kOthers = {
+    {"conductor_ggx", R"({"type": "conductor", "material": "Au", "distribution": "ggx", "alpha": 0.2})"},
+    {"dielectric", R"({"type": "dielectric", "alpha": 0.2})"},
+    {"blinnphong", R"({"type": "blinnphong", "exponent": 50, "specular_reflectance": 0.7, "diffuse_reflectance": 0.3})"},
+    {"gltf_pbr", R"({"type": "gltf_pbr", "base_color": [0.8, 0.6, 0.4], "metallic": 0.3, "roughness": 0.5})"},
+    {"leadr", R"({"type": "leadr", "material": "Cu", "covariance": [0.09, 0.02, 0.03]})"},
+    {"lean", R"({"type": "lean", "covariance": [0.09, 0.02, 0.03]})"},
+    {"clean", R"({"type": "clean", "covariance": [0.09, 0.01, 0.02], "exponent": 200})"},
+    {"toksvig", R"({"type": "toksvig", "exponent": 300, "average_normal": [0, 0, 0.9]})"},
+    {"vmf", R"({"type": "vmf", "lobes": [{"direction": [0.70710678, 0, 0.70710678], "kappa": 128},
+                                        {"direction": [-0.70710678, 0, 0.70710678], "kappa": 128}]})"},
+    {"normalmap", R"({"type": "normalmap", "normal": [0.3, 0.1, 0.9], "bsdf": {"type": "conductor", "material": "Au", "alpha": 0.2}})"},
+};
+
 /// A small model made by the prefilter pipeline with this base (see the header), written to dir.
 void build_small_model(const Base &b, const std::string &dir) {
     prefilter::PipelineOptions o;
@@ -168,6 +186,19 @@ void print_summary(const std::map<std::string, double> &ns) {
                         ratio(s).c_str());
         }
     }
+    std::printf("Other materials, median CPU ns per shading sample (shade / vertex)\n");
+    for (const Base &b : kOthers) {
+        auto a = ns.find("shade/" + b.name), v = ns.find("vertex/" + b.name);
+        if (a != ns.end() && v != ns.end()) std::printf("  %-10s %10.1f %10.1f\n", b.name.c_str(), a->second, v->second);
+    }
+}
+
+/// Registers shade/NAME and vertex/NAME for material m.
+void register_material(const std::string &name, const Material *m) {
+    for (bool with_pdf : {true, false})
+        benchmark::RegisterBenchmark(fmt::format("{}/{}", with_pdf ? "shade" : "vertex", name).c_str(), shading_sample, m,
+                                     with_pdf)
+            ->Unit(benchmark::kNanosecond);
 }
 
 }  // namespace
@@ -201,11 +232,12 @@ int main(int argc, char **argv) {
                                                     {"estimator", est}})});
             for (auto &[name, m] : mats) {
                 keep.push_back(m);
-                for (bool with_pdf : {true, false})
-                    benchmark::RegisterBenchmark(fmt::format("{}/{}", with_pdf ? "shade" : "vertex", name).c_str(),
-                                                 shading_sample, m.get(), with_pdf)
-                        ->Unit(benchmark::kNanosecond);
+                register_material(name, m.get());
             }
+        }
+        for (const Base &b : kOthers) {
+            keep.push_back(material_from_json(nlohmann::json::parse(b.json)));
+            register_material(b.name, keep.back().get());
         }
     } catch (const std::exception &e) {
         std::fprintf(stderr, "meso_microbench: setup failed: %s\n", e.what());
