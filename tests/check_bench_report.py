@@ -45,6 +45,9 @@ def main():
                     bad.append(f"{tag}/{m}/{x.get('budget_s')}: NaN pixels")
                 if fin(x.get("time_s")) and x["time_s"] > 1.5 * x["budget_s"] + 0.5:
                     bad.append(f"{tag}/{m}/{x['budget_s']}: ran {x['time_s']:.2f} s, over its budget")
+        tp = r.get("texels_per_pixel")
+        if not (tp and fin(tp.get("median")) and tp["median"] > 0 and 0 < tp.get("covered", 0) <= 1):
+            bad.append(f"{tag}: texels_per_pixel = {tp}")
         if len(r.get("comparison", [])) != len(res["times"]):
             bad.append(f"{tag}: equal-time comparison missing")
         for c in r.get("comparison", []):
