@@ -1,6 +1,6 @@
 // `meso prefilter (--map MAP | --generator KIND [-p key=value]...) --base MATERIAL
 //                 [--scales 8,64] [-M 4] [-N 15] [--lobes 6] [--interreflections on|off]
-//                 [--paths 64] [--low-paths 8] [--target-error E] [--max-rounds R] [--seed S]
+//                 [--paths 64] [--low-paths 8] [--target-error E] [--max-rounds R] [--max-seconds T] [--seed S]
 //                 -o MODEL_DIR`
 //
 // The flags of paper 004's precomputation: parsed and validated here, run by
@@ -143,8 +143,13 @@ SubcommandRegistrar reg_prefilter{
              ->capture_default_str()
              ->check(CLI::Range(0, 4096));
          app.add_option("--target-error", o->target_error,
-                        "rounds until the median relative std. error of S is below this (0: one round)")->capture_default_str();
+                        "rounds until the median relative std. error of every S table is below this, tracing only the wo bins "
+                        "above it after the first round (0: one round)")->capture_default_str();
          app.add_option("--max-rounds", o->max_rounds, "at most this many rounds")->capture_default_str()->check(CLI::Range(1, 1000));
+         app.add_option("--max-seconds", o->max_seconds,
+                        "no new T/S round once a round as long as the last would end past this build time (0: no limit)")
+             ->capture_default_str()
+             ->check(CLI::NonNegativeNumber);
          app.add_option("--ndf-samples", o->samples_per_cell, "n x n micro-normals per fine cell for the NDF fit")->capture_default_str()
              ->check(CLI::Range(1, 32));
          app.add_option("--quadrature", o->quad_polar, "f'_low quadrature: nodes per lobe in the vMF CDF variable")->capture_default_str()

@@ -98,7 +98,7 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
     model.manifest["parameters"] = {{"scales", o.scales}, {"M", o.M}, {"N", o.N}, {"lobes", o.lobes},
                                     {"interreflections", o.interreflections}, {"paths_per_bin", o.paths},
                                     {"low_paths_per_bin", o.low_paths}, {"low_nodes", o.low_nodes}, {"target_error", o.target_error},
-                                    {"max_rounds", o.max_rounds}, {"epsilon", o.epsilon}, {"seed", o.seed},
+                                    {"max_rounds", o.max_rounds}, {"max_seconds", o.max_seconds}, {"epsilon", o.epsilon}, {"seed", o.seed},
                                     {"ndf_samples_per_cell", o.samples_per_cell},
                                     {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
                                     {"flow_projected_area", o.flow_projected_area},
@@ -142,9 +142,11 @@ std::vector<PatchNdf> svndf_stage(const PipelineOptions &o, const HeightMap &map
 }
 
 /// §6: rounds of the T/S estimator (eq. 12, 20-24) until the median relative standard error
-/// of S reaches --target-error or --max-rounds; fills the level's tables and `st`.
+/// of every S table reaches --target-error (only the ωo bins above it are traced again,
+/// scaling.h "Stopping rule"), --max-rounds, or the level's share of --max-seconds would be
+/// exceeded by another round as long as the last; fills the level's tables and `st`.
 void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Material &base, const Heightfield &low_field,
-                   const SvMultiLobe &low_mat, PrefilteredLevel &L, ScalingStats &st) {
+                   const SvMultiLobe &low_mat, double seconds_budget, PrefilteredLevel &L, ScalingStats &st) {
     const int F = L.factor;
     const bool ir = o.interreflections;
     ScalingOptions sopt;
@@ -155,6 +157,7 @@ void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Mate
     sopt.low_paths = o.low_paths;
     sopt.low_nodes = o.low_nodes;
     sopt.epsilon = o.epsilon;
+    sopt.target_error = o.target_error;
     sopt.seed = hash_combine(o.seed, uint64_t(F));
     Progress progress(!o.quiet && dist::rank() == 0, 1.0, "");
     const auto t_round = std::make_shared<Clock::time_point>(Clock::now());
@@ -164,14 +167,18 @@ void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Mate
     };
     ScalingEstimator est(orig, base, low_field, low_mat, sopt);
     const auto t0 = Clock::now();
-    double se = 0;
+    double se = 0, last = 0;
     for (round = 0; round < std::max(1, o.max_rounds); ++round) {
+        if (round > 0 && seconds_budget > 0 && since(t0) + last > seconds_budget) break;
         *t_round = Clock::now();
-        est.add_round();
-        progress.finish(since(*t_round));
+        const size_t traced = est.add_round();
+        last = since(*t_round);
+        progress.finish(last);
+        if (traced == 0) break;
         se = est.current_S_rel_se();
-        if (dist::rank() == 0) std::fprintf(stderr, "  x%d: round %d: median relative std. error of S%s %.4f (%.1f s)\n", F, round + 1,
-                     ir ? "_ir" : "", se, since(t0));
+        if (dist::rank() == 0)
+            std::fprintf(stderr, "  x%d: round %d: %zu tasks, median relative std. error of S%s %.4f (%.1f s)\n", F,
+                         round + 1, traced, ir ? " (single and ir, the larger)" : "", se, since(t0));
         if (!(o.target_error > 0) || se <= o.target_error) break;
     }
     est.finish(L.single, L.ir, st);
@@ -190,6 +197,9 @@ nlohmann::json stats_json(const ScalingStats &s, bool ir) {
                                              {"median_outer_ring", s.S_rel_se_median_outer},
                                              {"median_at_paper_counts", s.S_rel_se_median_paper_counts}}},
                         {"T_rel_std_error_max", s.T_rel_se_max},
+                        {"T_rel_std_error_median", s.T_rel_se_median},
+                        {"tasks_traced", s.tasks_traced},
+                        {"estimator_bytes", s.estimator_bytes},
                         {"rank1", {{"energy_sigma1_sq", s.rank1_energy},
                                    {"svd_rel_error", s.rank1_svd_rel_error},
                                    {"TS_rel_error", s.ts_rel_error}, {"paper_eq22_24_rel_error", s.paper_ts_rel_error},
@@ -199,6 +209,7 @@ nlohmann::json stats_json(const ScalingStats &s, bool ir) {
                                    {"median_outer_ring", s.S_ir_rel_se_median_outer},
                                    {"median_at_paper_counts", s.S_ir_rel_se_median_paper_counts}};
         j["T_ir_rel_std_error_max"] = s.T_ir_rel_se_max;
+        j["T_ir_rel_std_error_median"] = s.T_ir_rel_se_median;
         j["rank1_ir"] = {{"energy_sigma1_sq", s.rank1_energy_ir},
                          {"svd_rel_error", s.rank1_svd_rel_error_ir},
                          {"TS_rel_error", s.ts_rel_error_ir}, {"paper_eq22_24_rel_error", s.paper_ts_rel_error_ir},
@@ -209,8 +220,9 @@ nlohmann::json stats_json(const ScalingStats &s, bool ir) {
 
 /// One level (factor F): h_low, the SVNDF, f'_low (eq. 11) and T / S, with its manifest stats.
 PrefilteredLevel build_level(const PipelineOptions &o, int F, const Inputs &in, const OriginalFields &orig,
-                             const QuadratureOptions &quadrature) {
+                             const QuadratureOptions &quadrature, double seconds_budget) {
     const bool ir = o.interreflections;
+    const auto t_level = Clock::now();
     PrefilteredLevel L;
     L.factor = F;
     nlohmann::json timing;
@@ -228,7 +240,8 @@ PrefilteredLevel build_level(const PipelineOptions &o, int F, const Inputs &in, 
     const Heightfield low_field(L.h_low, float(o.height_scale * double(L.h_low.width) / o.tile_size), 0.f);
     t0 = Clock::now();
     ScalingStats st;
-    scaling_stage(o, orig.cells, *in.base, low_field, *low_mat, L, st);
+    scaling_stage(o, orig.cells, *in.base, low_field, *low_mat,
+                  seconds_budget > 0 ? std::max(1e-3, seconds_budget - since(t_level)) : 0.0, L, st);
     timing["scaling_s"] = since(t0);
     L.stats = stats_json(st, ir);
     L.stats["timing"] = timing;
@@ -263,7 +276,12 @@ PrefilteredModel build_model(const PipelineOptions &opts) {
     if (dist::rank() == 0) std::fprintf(stderr, "prefilter: %dx%d map, base %s, scales %s, M = %d, N = %d, %d lobes, interreflections %s\n",
                  map.width, map.height, in.base->to_string().c_str(), scales_text(o.scales).c_str(), o.M, o.N, o.lobes,
                  o.interreflections ? "on" : "off");
-    for (int F : o.scales) model.levels.push_back(build_level(o, F, in, orig, model.quadrature));
+    // --max-seconds: each level gets an equal share of what is left of the budget.
+    for (size_t i = 0; i < o.scales.size(); ++i) {
+        const double left = o.max_seconds - since(t_all);
+        const double budget = o.max_seconds > 0 ? std::max(1e-3, left / double(o.scales.size() - i)) : 0.0;
+        model.levels.push_back(build_level(o, o.scales[i], in, orig, model.quadrature, budget));
+    }
     model.manifest["total_seconds"] = since(t_all);
     // Under MPI every rank holds the same tables (ScalingEstimator::add_round); rank 0 writes.
     model.manifest["ranks"] = dist::size();

@@ -41,6 +41,7 @@ struct PipelineOptions {
     int paths = 64, low_paths = 64, low_nodes = 4;  ///< --paths, --low-paths, --low-nodes
     double target_error = 0;   ///< --target-error (0: one round)
     int max_rounds = 8;        ///< --max-rounds
+    double max_seconds = 0;    ///< --max-seconds: no new T/S round past this model build time (0: none)
     double epsilon = 1e-2;     ///< --epsilon: eq. 12's ε, relative to the mean denominator
     uint64_t seed = 1;         ///< --seed of the estimators
     int quad_polar = 3, quad_azimuth = 4;  ///< --quadrature, --quadrature-azimuth: f'_low nodes

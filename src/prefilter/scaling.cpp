@@ -27,7 +27,8 @@ int perfect_square_root(int k) {
     return g * g == k ? g : 0;
 }
 
-/// Per-line contribution buffers of one task.
+/// Per-line contribution buffers of one task: a = single-bounce (or f'_low) terms of the line,
+/// b = all bounces.
 struct LineBuf {
     std::vector<double> a, b;  // N² x 3
     explicit LineBuf(int bins) : a(size_t(bins) * 3), b(size_t(bins) * 3) {}
@@ -72,7 +73,10 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
     m_slope_orig = max_slope(orig);
     m_slope_low = max_slope(low);
     const size_t n = size_t(M) * M * m_bins * m_bins * 3;
-    for (auto *v : {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq}) v->assign(n, 0.0);
+    for (auto *v : {&m_n1, &m_n1sq, &m_d, &m_dsq, &m_n1x}) v->assign(n, 0.0);
+    if (opt.interreflections)
+        for (auto *v : {&m_nir, &m_nirsq, &m_nirx}) v->assign(n, 0.0);
+    m_stats.estimator_bytes = (opt.interreflections ? 8 : 5) * n * sizeof(double) + 2 * size_t(M) * M * m_bins * sizeof(uint32_t);
     m_count_orig.assign(size_t(M) * M * m_bins, 0);
     m_count_low.assign(size_t(M) * M * m_bins, 0);
 }
@@ -91,7 +95,6 @@ struct ScalingEstimator::Task {
     const size_t base_idx;  ///< this task's [bi][ch] slice of the sums
     PCG32 rng;              ///< path continuations and f'_low node selection (lines have their own streams)
     std::vector<Vec3> wi;   ///< ωi of every bin for the current line (one random shift of the grid per line)
-    LineBuf buf;            ///< a: single-bounce (or f'_low) terms of the line, b: all bounces
     std::vector<Spectrum> fl;  ///< f'_low(ωi of every bin, ωo) of the current line
     std::vector<size_t> vis;   ///< f'_low's nodes facing ωo ...
     std::vector<double> vw;    ///< ... and their weights c_k
@@ -102,7 +105,7 @@ struct ScalingEstimator::Task {
         : est(e), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
           pa(int(t / size_t(B)) % M), pb(int(t / size_t(B)) / M), box(int(t % size_t(B)) % N),
           boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3),
-          rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)), buf(B),
+          rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)),
           fl(static_cast<size_t>(B)) {}
 
     // Line k's own stream: its ωo, ωi shift and position in P are the same on G_orig and on
@@ -116,14 +119,6 @@ struct ScalingEstimator::Task {
         const float sa = lr.next_float(), sb = lr.next_float();
         for (int b = 0; b < B; ++b)
             wi[size_t(b)] = square_to_hemisphere(Vec2((float(b % N) + sa) / float(N), (float(b / N) + sb) / float(N)));
-    }
-    /// One line's terms into this task's sums and sums of squares.
-    void accumulate(std::vector<double> &sum, std::vector<double> &sq, const std::vector<double> &line) {
-        for (size_t k = 0; k < size_t(B) * 3; ++k) {
-            const double x = line[k];
-            sum[base_idx + k] += x;
-            sq[base_idx + k] += x * x;
-        }
     }
     /// Patch P of this task in a field's cell space.
     PatchRegion patch_of(const Heightfield &hf) const {
@@ -170,7 +165,7 @@ struct ScalingEstimator::Task {
     // --- the original microgeometry: paths, next-event towards every ωi bin -----------------
     /// Next-event terms of vertex v (seen from local lwo) towards every ωi bin: eq. 6's
     /// integrand at the first vertex (buf.a), eq. 17's at every vertex (buf.b).
-    void splat_original_vertex(const Vertex &v, Vec3 lwo, const Spectrum &throughput, int depth) {
+    void splat_original_vertex(const Vertex &v, Vec3 lwo, const Spectrum &throughput, int depth, LineBuf &buf) {
         const Frame &fr = v.ctx.frame;
         const Vec3 org = spawn_origin(v);
         for (int b = 0; b < B; ++b) {
@@ -210,31 +205,25 @@ struct ScalingEstimator::Task {
         w_out = -dir;
         return true;
     }
-    /// orig_paths lines of sight on G_orig, each with its path (eq. 15-17): the numerators.
-    void trace_original() {
+    /// Line k of K on G_orig with its path (eq. 15-17): the numerator terms into `out` (cleared
+    /// by the caller); false when the line was rejected or leaked.
+    bool trace_original_line(int k, int K, LineBuf &out) {
         const bool ir = est.m_opt.interreflections;
         const int max_vertices = ir ? est.m_opt.max_bounces : 1;
-        const PatchRegion R = patch_of(est.m_orig);
-        const int K = est.m_opt.orig_paths;
-        for (int k = 0; k < K; ++k) {
-            Vec3 wo;
-            Vertex v;
-            if (!start_line(est.m_orig, R, k, K, false, wo, v, orig_lines)) continue;
-            ++acc_orig;
-            buf.clear();
-            Spectrum throughput(1.f);
-            Vec3 w_out = wo;
-            for (int depth = 1;; ++depth) {
-                ++vertices;
-                const Vec3 lwo = v.ctx.frame.to_local(w_out);
-                if (!(lwo.z > 0.f)) break;
-                splat_original_vertex(v, lwo, throughput, depth);
-                if (depth >= max_vertices) break;
-                if (!continue_path(v, w_out, throughput, lwo, depth)) break;
-            }
-            accumulate(est.m_n1, est.m_n1sq, buf.a);
-            if (ir) accumulate(est.m_nir, est.m_nirsq, buf.b);
+        Vec3 wo;
+        Vertex v;
+        if (!start_line(est.m_orig, patch_of(est.m_orig), k, K, false, wo, v, orig_lines)) return false;
+        Spectrum throughput(1.f);
+        Vec3 w_out = wo;
+        for (int depth = 1;; ++depth) {
+            ++vertices;
+            const Vec3 lwo = v.ctx.frame.to_local(w_out);
+            if (!(lwo.z > 0.f)) break;
+            splat_original_vertex(v, lwo, throughput, depth, out);
+            if (depth >= max_vertices) break;
+            if (!continue_path(v, w_out, throughput, lwo, depth)) break;
         }
+        return true;
     }
 
     // --- the downsampled model: one bounce, f'_low in the macro frame -----------------------
@@ -266,33 +255,86 @@ struct ScalingEstimator::Task {
             }
         }
     }
-    /// low_paths lines of sight on G_low with f'_low, single bounce (eq. 20): the denominators.
-    void trace_low() {
+    /// Line k of K on G_low with f'_low, single bounce (eq. 20): the denominator terms into
+    /// out.a (cleared by the caller); false when the line was rejected or leaked.
+    bool trace_low_line(int k, int K, LineBuf &out) {
         const int J = est.m_opt.low_nodes;
-        const PatchRegion R = patch_of(est.m_low);
-        const int K = est.m_opt.low_paths;
-        for (int k = 0; k < K; ++k) {
-            Vec3 wo;
-            Vertex v;
-            if (!start_line(est.m_low, R, k, K, true, wo, v, low_lines)) continue;
-            ++acc_low;
-            buf.clear();
-            const Vec3 org = spawn_origin(v);
-            const MultiLobeBrdf &fl_patch = est.m_low_mat.patch(v.ctx.uv);
-            if (J == 0)
-                fl_patch.eval_batch(v.ctx, wo, wi.data(), B, fl.data());
-            else
-                sample_f_low_nodes(fl_patch, v.ctx, wo, J);
-            for (int b = 0; b < B; ++b) {
-                const Vec3 &w = wi[size_t(b)];
-                const Spectrum &f = fl[size_t(b)];
-                if (f.is_black() || !(dot(v.n, w) > 0.f)) continue;  // below the h_low facet: self-shadowed
-                if (!unoccluded_by_slope(w, est.m_slope_low) && est.m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy))
-                    continue;
-                double *p = &buf.a[size_t(b) * 3];
-                for (int q = 0; q < 3; ++q) p[q] += f[q];
+        Vec3 wo;
+        Vertex v;
+        if (!start_line(est.m_low, patch_of(est.m_low), k, K, true, wo, v, low_lines)) return false;
+        const Vec3 org = spawn_origin(v);
+        const MultiLobeBrdf &fl_patch = est.m_low_mat.patch(v.ctx.uv);
+        if (J == 0)
+            fl_patch.eval_batch(v.ctx, wo, wi.data(), B, fl.data());
+        else
+            sample_f_low_nodes(fl_patch, v.ctx, wo, J);
+        for (int b = 0; b < B; ++b) {
+            const Vec3 &w = wi[size_t(b)];
+            const Spectrum &f = fl[size_t(b)];
+            if (f.is_black() || !(dot(v.n, w) > 0.f)) continue;  // below the h_low facet: self-shadowed
+            if (!unoccluded_by_slope(w, est.m_slope_low) && est.m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy))
+                continue;
+            double *p = &out.a[size_t(b) * 3];
+            for (int q = 0; q < 3; ++q) p[q] += f[q];
+        }
+        return true;
+    }
+
+    /// Adds one line's terms to this task's slice of `sum`.
+    void add_line(std::vector<double> &sum, const std::vector<double> &line) {
+        for (size_t q = 0; q < size_t(B) * 3; ++q) sum[base_idx + q] += line[q];
+    }
+    /// Pair terms (scaling.h, "Standard errors") of lines x (numerator) and y (denominator):
+    /// Σ (x0 - x1)² into sq, Σ (y0 - y1)² into dsq, Σ (x0 - x1)(y0 - y1) into cross; a null
+    /// partner (the unpaired last line) counts as 0; null sq / dsq / cross skip that term.
+    void add_pair(const std::vector<double> *x0, const std::vector<double> *x1, const std::vector<double> *y0,
+                  const std::vector<double> *y1, std::vector<double> *sq, std::vector<double> *dsq,
+                  std::vector<double> *cross) {
+        for (size_t q = 0; q < size_t(B) * 3; ++q) {
+            const double dx = x0 ? (*x0)[q] - (x1 ? (*x1)[q] : 0.0) : 0.0;
+            const double dy = y0 ? (*y0)[q] - (y1 ? (*y1)[q] : 0.0) : 0.0;
+            if (sq) (*sq)[base_idx + q] += dx * dx;
+            if (dsq) (*dsq)[base_idx + q] += dy * dy;
+            if (cross) (*cross)[base_idx + q] += dx * dy;
+        }
+    }
+    /// Both fields' lines in consecutive pairs: sums, pair differences and, when both fields
+    /// trace the same number of lines (line k shares its random numbers), the cross terms.
+    void trace_lines(double &t_orig, double &t_low) {
+        const int Ko = est.m_opt.orig_paths, Kl = est.m_opt.low_paths;
+        const bool ir = est.m_opt.interreflections, paired = Ko == Kl;
+        LineBuf o[2] = {LineBuf(B), LineBuf(B)}, l[2] = {LineBuf(B), LineBuf(B)};
+        for (int k = 0; k < std::max(Ko, Kl); ++k) {
+            const int s = k & 1;
+            if (k < Ko) {
+                const auto t0 = Clock::now();
+                o[s].clear();
+                if (trace_original_line(k, Ko, o[s])) {
+                    ++acc_orig;
+                    add_line(est.m_n1, o[s].a);
+                    if (ir) add_line(est.m_nir, o[s].b);
+                }
+                t_orig += seconds_since(t0);
             }
-            accumulate(est.m_d, est.m_dsq, buf.a);
+            if (k < Kl) {
+                const auto t0 = Clock::now();
+                l[s].clear();
+                if (trace_low_line(k, Kl, l[s])) {
+                    ++acc_low;
+                    add_line(est.m_d, l[s].a);
+                }
+                t_low += seconds_since(t0);
+            }
+            // A complete pair (k - 1, k) of a field, or its unpaired last line k (partner 0).
+            const bool o_pair = k < Ko && (s == 1 || k == Ko - 1), l_pair = k < Kl && (s == 1 || k == Kl - 1);
+            if (!o_pair && !l_pair) continue;
+            const bool whole = s == 1;
+            add_pair(o_pair ? &o[0].a : nullptr, o_pair && whole ? &o[1].a : nullptr, l_pair ? &l[0].a : nullptr,
+                     l_pair && whole ? &l[1].a : nullptr, o_pair ? &est.m_n1sq : nullptr, l_pair ? &est.m_dsq : nullptr,
+                     paired ? &est.m_n1x : nullptr);
+            if (ir && o_pair)
+                add_pair(&o[0].b, whole ? &o[1].b : nullptr, paired ? &l[0].a : nullptr, paired && whole ? &l[1].a : nullptr,
+                         &est.m_nirsq, nullptr, paired ? &est.m_nirx : nullptr);
         }
     }
     /// The task's line counts and the shared counters (under a lock: tasks run in parallel).
@@ -314,53 +356,65 @@ struct ScalingEstimator::Task {
 
 void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
     Task t(*this, task, round_seed);
-    const auto t0 = Clock::now();
-    t.trace_original();
-    const double t_orig = seconds_since(t0);
-    const auto t1 = Clock::now();
-    t.trace_low();
-    const double t_low = seconds_since(t1);
+    double t_orig = 0, t_low = 0;
+    t.trace_lines(t_orig, t_low);
     t.commit(t_orig, t_low);
 }
 
-void ScalingEstimator::add_round() {
+size_t ScalingEstimator::add_round() {
     const size_t tasks = size_t(m_opt.M) * m_opt.M * m_bins;
+    // The stopping rule: after the first round, only the ωo bins still above the target.
+    std::vector<size_t> active;
+    if (m_opt.target_error > 0 && m_stats.rounds > 0) {
+        const std::vector<double> per_bo = S_rel_se_per_wo_bin();
+        for (size_t t = 0; t < tasks; ++t)
+            if (per_bo[t % size_t(m_bins)] > m_opt.target_error) active.push_back(t);
+    } else {
+        for (size_t t = 0; t < tasks; ++t) active.push_back(t);
+    }
+    if (active.empty()) return 0;
     const uint64_t round_seed = hash_combine(m_opt.seed, uint64_t(m_stats.rounds) + 1);
-    // MPI ranks (core/distributed.h, docs/cluster.md): task t belongs to rank t mod ranks in every
-    // round, so each sum is accumulated by one rank in the single-process order; after the round
-    // the ranks exchange their tasks' slices (each entry has one non-zero contribution, so the sum
-    // is exact) and every rank holds the same, single-process-identical arrays.
+    // MPI ranks (core/distributed.h, docs/cluster.md): the i-th active task belongs to rank
+    // i mod ranks, so each sum is accumulated by one rank in the single-process order; after the
+    // round the ranks exchange their tasks' slices (each entry has one non-zero contribution, so
+    // the sum is exact) and every rank holds the same, single-process-identical arrays.
     const size_t ranks = size_t(dist::size()), rank = size_t(dist::rank());
-    const size_t mine = ranks > 1 ? (tasks + ranks - 1 - rank) / ranks : tasks;
+    const size_t mine = ranks > 1 ? (active.size() + ranks - 1 - rank) / ranks : active.size();
     const ScalingStats before = m_stats;
     std::atomic<size_t> done{0};
     std::mutex mu;
     const auto t0 = Clock::now();
     tbb::parallel_for(size_t(0), mine, [&](size_t i) {
-        trace_task(ranks > 1 ? rank + i * ranks : i, round_seed);
+        trace_task(active[ranks > 1 ? rank + i * ranks : i], round_seed);
         const size_t d = ++done;
         if (m_opt.progress && (d % 16 == 0 || d == mine)) {
             std::lock_guard<std::mutex> lock(mu);
             m_opt.progress(double(d) / double(mine));
         }
     });
-    if (ranks > 1) share_round(before);
+    if (ranks > 1) share_round(before, active);
     m_stats.seconds += dist::allreduce_max(seconds_since(t0));
+    m_stats.tasks_traced += active.size();
     ++m_stats.rounds;
+    return active.size();
 }
 
-void ScalingEstimator::share_round(const ScalingStats &before) {
+void ScalingEstimator::share_round(const ScalingStats &before, const std::vector<size_t> &active) {
     const size_t ranks = size_t(dist::size()), rank = size_t(dist::rank());
     const size_t tasks = size_t(m_opt.M) * m_opt.M * m_bins, per = size_t(m_bins) * 3;
+    // The owner of every task's slice this round: the rank that traced it, rank 0 for the tasks
+    // nobody traced (every rank holds the same values for those).
+    std::vector<size_t> owner(tasks, 0);
+    for (size_t i = 0; i < active.size(); ++i) owner[active[i]] = i % ranks;
     auto share = [&](auto &a, size_t stride) {
         if (a.empty()) return;
         std::remove_reference_t<decltype(a)> c(a.size(), 0);
-        for (size_t t = rank; t < tasks; t += ranks)
-            std::copy(a.begin() + t * stride, a.begin() + (t + 1) * stride, c.begin() + t * stride);
+        for (size_t t = 0; t < tasks; ++t)
+            if (owner[t] == rank) std::copy(a.begin() + t * stride, a.begin() + (t + 1) * stride, c.begin() + t * stride);
         dist::allreduce_sum(c.data(), c.size());
         a.swap(c);
     };
-    for (std::vector<double> *a : {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq}) share(*a, per);
+    for (std::vector<double> *a : {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq, &m_n1x, &m_nirx}) share(*a, per);
     share(m_count_orig, 1);
     share(m_count_low, 1);
     double d[7] = {double(m_stats.orig_lines - before.orig_lines), double(m_stats.low_lines - before.low_lines),
@@ -390,6 +444,20 @@ double ScalingEstimator::denom_mean(int ch) const {
     return n ? s / double(n) : 0.0;
 }
 
+ScalingEstimator::BinMoments ScalingEstimator::bin_moments(int patch, int bi, int bo, int ch, bool ir) const {
+    const size_t t = size_t(patch) * m_bins + bo;
+    const size_t k = (t * m_bins + bi) * 3 + ch;
+    BinMoments b;
+    b.lines_orig = m_count_orig[t], b.lines_low = m_count_low[t];
+    const double no = b.lines_orig, nl = b.lines_low;
+    if (no > 0) {
+        b.num = (ir ? m_nir[k] : m_n1[k]) / no;
+        b.num_se = std::sqrt((ir ? m_nirsq[k] : m_n1sq[k])) / no;
+    }
+    if (nl > 0) b.den = m_d[k] / nl, b.den_se = std::sqrt(m_dsq[k]) / nl;
+    return b;
+}
+
 double ScalingEstimator::R(int patch, int bi, int bo, int ch, bool ir) const {
     const size_t t = size_t(patch) * m_bins + bo;
     const size_t k = (t * m_bins + bi) * 3 + ch;
@@ -404,36 +472,32 @@ namespace {
 
 /// Per (patch P, bin pair j = bo B + bi, channel): the sample means of eq. 12's numerator
 /// (the original's f_eff·cos θi, integrated over the two bins) and denominator (the same on
-/// h_low with f'_low), and the variances of those means.
+/// h_low with f'_low), the variances of those means and their covariance (scaling.h,
+/// "Standard errors").
 struct BinPairMoments {
     size_t BB = 0;  ///< angular bin pairs (bo, bi), index bo B + bi
-    std::vector<double> num, den, vnum, vden;
+    std::vector<double> num, den, vnum, vden, cov;
     size_t at(int p, size_t j, int c) const { return (size_t(p) * BB + j) * 3 + c; }
 };
 
-/// The sums of one table set (numerator `sum`/`sq`, denominator `dsum`/`dsq`) as means and
-/// variances of the means; a single line counts its square as its variance.
+/// The sums of one table set (numerator `sum`, its pair-difference squares `sq`, denominator
+/// `dsum`/`dsq`, the cross terms `cross`) as means, variances and covariances of the means.
 BinPairMoments bin_pair_moments(const std::vector<double> &sum, const std::vector<double> &sq,
                                 const std::vector<double> &dsum, const std::vector<double> &dsq,
-                                const std::vector<uint32_t> &count_orig, const std::vector<uint32_t> &count_low, int P,
-                                int B) {
+                                const std::vector<double> &cross, const std::vector<uint32_t> &count_orig,
+                                const std::vector<uint32_t> &count_low, int P, int B) {
     BinPairMoments m;
     m.BB = size_t(B) * B;
     const size_t n_all = size_t(P) * m.BB * 3;
-    m.num.resize(n_all), m.den.resize(n_all), m.vnum.resize(n_all), m.vden.resize(n_all);
+    m.num.resize(n_all), m.den.resize(n_all), m.vnum.resize(n_all), m.vden.resize(n_all), m.cov.resize(n_all);
     tbb::parallel_for(size_t(0), size_t(P) * B, [&](size_t t) {
         const double no = count_orig[t], nl = count_low[t];
         for (size_t k = t * B * 3; k < (t + 1) * B * 3; ++k) {
-            double a = 0, va = 0, d = 0, vd = 0;
-            if (no > 0) {
-                a = sum[k] / no;
-                va = no > 1 ? std::max(0.0, (sq[k] - no * a * a) / (no - 1)) / no : a * a;
-            }
-            if (nl > 0) {
-                d = dsum[k] / nl;
-                vd = nl > 1 ? std::max(0.0, (dsq[k] - nl * d * d) / (nl - 1)) / nl : d * d;
-            }
-            m.num[k] = a, m.vnum[k] = va, m.den[k] = d, m.vden[k] = vd;
+            m.num[k] = no > 0 ? sum[k] / no : 0.0;
+            m.vnum[k] = no > 0 ? sq[k] / (no * no) : 0.0;
+            m.den[k] = nl > 0 ? dsum[k] / nl : 0.0;
+            m.vden[k] = nl > 0 ? dsq[k] / (nl * nl) : 0.0;
+            m.cov[k] = no > 0 && nl > 0 ? cross[k] / (no * nl) : 0.0;
         }
     });
     return m;
@@ -517,33 +581,41 @@ void write_tables(const Rank1Factors &f, int M, int N, ScalingTables &tab) {
 
 /// What one table set reached: ScalingStats' fields for `single` or `ir`.
 struct TableStats {
-    double med = 0, p90 = 0, mx = 0, med_outer = 0, med_paper = 0, t_max = 0, energy = 0, svd_err = 0, ts_err = 0,
-           paper_err = 0;
+    double med = 0, p90 = 0, mx = 0, med_outer = 0, med_paper = 0, t_max = 0, t_med = 0, energy = 0, svd_err = 0,
+           ts_err = 0, paper_err = 0;
     std::vector<double> sv;
+    std::vector<double> pair_rel;  ///< S's relative standard error per bin pair j (-1: not estimated)
 };
 
-/// Relative standard errors of S and T (green; delta method, numerator and denominator
-/// independent, T or S fixed), and of S at the paper's counts (2500 paths per effective BRDF).
+/// Relative standard error of a / d (delta method) from the variances and covariance.
+double ratio_rel_se(double a, double va, double d, double vd, double cov) {
+    return std::sqrt(std::max(0.0, va / (a * a) + vd / (d * d) - 2.0 * cov / (a * d)));
+}
+
+/// Relative standard errors of S (per bin pair, T fixed) and T (per patch, S fixed), green;
+/// and of S at the paper's counts (2500 paths per effective BRDF; numerator and denominator
+/// independent there).
 void standard_errors(const BinPairMoments &m, const Rank1Factors &f, const std::vector<uint32_t> &count_orig,
                      const std::vector<uint32_t> &count_low, int P, int N, TableStats &o) {
     const int B = N * N;
     const size_t BB = m.BB;
     std::vector<double> s_rel, s_rel_outer, s_rel_paper;
+    o.pair_rel.assign(BB, -1.0);
     auto outer = [&](int b) { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; };
     for (size_t j = 0; j < BB; ++j) {
         const int bo = int(j / size_t(B)), bi = int(j % size_t(B));
-        double a = 0, va = 0, d = 0, vd = 0, va_p = 0, vd_p = 0;
+        double a = 0, va = 0, d = 0, vd = 0, cv = 0, va_p = 0, vd_p = 0;
         for (int p = 0; p < P; ++p) {
             const double t = f.T[size_t(p) * 3 + 1];
-            const size_t task = size_t(p) * B + size_t(bo);
-            a += m.num[m.at(p, j, 1)], va += m.vnum[m.at(p, j, 1)];
-            d += t * m.den[m.at(p, j, 1)], vd += t * t * m.vden[m.at(p, j, 1)];
-            // The paper's counts: 2500 paths per effective BRDF (our per-line variance).
-            va_p += m.vnum[m.at(p, j, 1)] * count_orig[task] / 2500.0;
-            vd_p += t * t * m.vden[m.at(p, j, 1)] * count_low[task] / 2500.0;
+            const size_t task = size_t(p) * B + size_t(bo), k = m.at(p, j, 1);
+            a += m.num[k], va += m.vnum[k];
+            d += t * m.den[k], vd += t * t * m.vden[k], cv += t * m.cov[k];
+            va_p += m.vnum[k] * count_orig[task] / 2500.0;
+            vd_p += t * t * m.vden[k] * count_low[task] / 2500.0;
         }
         if (a > 0 && d > 0) {
-            const double rel = std::sqrt(va / (a * a) + vd / (d * d));
+            const double rel = ratio_rel_se(a, va, d, vd, cv);
+            o.pair_rel[j] = rel;
             s_rel_paper.push_back(std::sqrt(va_p / (a * a) + vd_p / (d * d)));
             s_rel.push_back(rel);
             if (outer(bi) && outer(bo)) s_rel_outer.push_back(rel);
@@ -554,16 +626,19 @@ void standard_errors(const BinPairMoments &m, const Rank1Factors &f, const std::
     o.mx = s_rel.empty() ? 0.0 : *std::max_element(s_rel.begin(), s_rel.end());
     o.med_outer = median_of(s_rel_outer);
     o.med_paper = median_of(s_rel_paper);
-    o.t_max = 0;
+    std::vector<double> t_rel;
     for (int p = 0; p < P; ++p) {
-        double a = 0, va = 0, d = 0, vd = 0;
+        double a = 0, va = 0, d = 0, vd = 0, cv = 0;
         for (size_t j = 0; j < BB; ++j) {
             const double sj = f.S[j * 3 + 1];
-            a += m.num[m.at(p, j, 1)], va += m.vnum[m.at(p, j, 1)];
-            d += sj * m.den[m.at(p, j, 1)], vd += sj * sj * m.vden[m.at(p, j, 1)];
+            const size_t k = m.at(p, j, 1);
+            a += m.num[k], va += m.vnum[k];
+            d += sj * m.den[k], vd += sj * sj * m.vden[k], cv += sj * m.cov[k];
         }
-        if (a > 0 && d > 0) o.t_max = std::max(o.t_max, std::sqrt(va / (a * a) + vd / (d * d)));
+        if (a > 0 && d > 0) t_rel.push_back(ratio_rel_se(a, va, d, vd, cv));
     }
+    o.t_max = t_rel.empty() ? 0.0 : *std::max_element(t_rel.begin(), t_rel.end());
+    o.t_med = median_of(t_rel);
 }
 
 /// The bin pairs whose centres are both at θ <= 75° (paper 004 excludes the others from its
@@ -634,37 +709,64 @@ void rank1_check(const BinPairMoments &m, const Rank1Factors &f, int P, int N, T
 }  // namespace
 
 void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, ScalingStats &stats) const {
+    finish_impl(single, ir_tab, stats, nullptr);
+}
+
+namespace {
+/// Per ωo bin, the median over ωi bins of the per-pair relative standard errors (-1 entries
+/// skipped; 0 when none).
+void per_wo_bin_medians(const std::vector<double> &pair_rel, int B, std::vector<double> &out) {
+    out.assign(size_t(B), 0.0);
+    std::vector<double> v;
+    for (int bo = 0; bo < B; ++bo) {
+        v.clear();
+        for (int bi = 0; bi < B; ++bi)
+            if (const double r = pair_rel[size_t(bo) * B + bi]; r >= 0) v.push_back(r);
+        out[size_t(bo)] = median_of(v);
+    }
+}
+}  // namespace
+
+void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab, ScalingStats &stats,
+                                   std::vector<double> *per_bo) const {
     const int M = m_opt.M, N = m_opt.N, B = m_bins, P = M * M;
     stats = m_stats;
     // One table set: moments, rank-1 factors, tables, then the diagnostics of the fit.
     auto build = [&](bool use_ir, ScalingTables &tab, TableStats &o) {
         const BinPairMoments m = bin_pair_moments(use_ir ? m_nir : m_n1, use_ir ? m_nirsq : m_n1sq, m_d, m_dsq,
-                                                  m_count_orig, m_count_low, P, B);
+                                                  use_ir ? m_nirx : m_n1x, m_count_orig, m_count_low, P, B);
         Rank1Factors f;
         f.T.assign(size_t(P) * 3, 1.0);
         f.S.assign(m.BB * 3, 1.0);
         for (int c = 0; c < 3; ++c) fit_rank1_channel(m, P, c, m_opt.epsilon, f);
         write_tables(f, M, N, tab);
         standard_errors(m, f, m_count_orig, m_count_low, P, N, o);
-        rank1_check(m, f, P, N, o);
+        if (!per_bo) rank1_check(m, f, P, N, o);
     };
     TableStats o1;
     build(false, single, o1);
     stats.S_rel_se_median = o1.med, stats.S_rel_se_p90 = o1.p90, stats.S_rel_se_max = o1.mx;
-    stats.S_rel_se_median_outer = o1.med_outer, stats.T_rel_se_max = o1.t_max;
+    stats.S_rel_se_median_outer = o1.med_outer, stats.T_rel_se_max = o1.t_max, stats.T_rel_se_median = o1.t_med;
     stats.rank1_energy = o1.energy, stats.rank1_svd_rel_error = o1.svd_err, stats.ts_rel_error = o1.ts_err;
     stats.paper_ts_rel_error = o1.paper_err;
     stats.S_rel_se_median_paper_counts = o1.med_paper;
     stats.singular_values = o1.sv;
+    if (per_bo) per_wo_bin_medians(o1.pair_rel, B, *per_bo);
     if (m_opt.interreflections) {
         TableStats o2;
         build(true, ir_tab, o2);
         stats.S_ir_rel_se_median = o2.med, stats.S_ir_rel_se_p90 = o2.p90;
         stats.S_ir_rel_se_median_outer = o2.med_outer, stats.T_ir_rel_se_max = o2.t_max;
+        stats.T_ir_rel_se_median = o2.t_med;
         stats.rank1_energy_ir = o2.energy, stats.rank1_svd_rel_error_ir = o2.svd_err, stats.ts_rel_error_ir = o2.ts_err;
         stats.paper_ts_rel_error_ir = o2.paper_err;
         stats.S_ir_rel_se_median_paper_counts = o2.med_paper;
         stats.singular_values_ir = o2.sv;
+        if (per_bo) {
+            std::vector<double> ir_bo;
+            per_wo_bin_medians(o2.pair_rel, B, ir_bo);
+            for (int b = 0; b < B; ++b) (*per_bo)[size_t(b)] = std::max((*per_bo)[size_t(b)], ir_bo[size_t(b)]);
+        }
     } else {
         ir_tab = ScalingTables{};
     }
@@ -673,8 +775,17 @@ void ScalingEstimator::finish(ScalingTables &single, ScalingTables &ir_tab, Scal
 double ScalingEstimator::current_S_rel_se() const {
     ScalingTables a, b;
     ScalingStats s;
-    finish(a, b, s);
-    return m_opt.interreflections ? s.S_ir_rel_se_median : s.S_rel_se_median;
+    std::vector<double> per_bo;
+    finish_impl(a, b, s, &per_bo);
+    return m_opt.interreflections ? std::max(s.S_rel_se_median, s.S_ir_rel_se_median) : s.S_rel_se_median;
+}
+
+std::vector<double> ScalingEstimator::S_rel_se_per_wo_bin() const {
+    ScalingTables a, b;
+    ScalingStats s;
+    std::vector<double> per_bo;
+    finish_impl(a, b, s, &per_bo);
+    return per_bo;
 }
 
 }  // namespace meso::prefilter

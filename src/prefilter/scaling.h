@@ -45,8 +45,20 @@
 // (task t to rank t mod ranks, every round) and exchanged after each round: the tables are
 // bit-identical to a single process's (docs/cluster.md).
 //
-// Standard errors: delta method with numerator and denominator taken as independent
-// (conservative: the common random numbers correlate them positively).
+// Standard errors (what the stopping rule and the manifest report). The lines of a task are
+// taken in consecutive pairs (neighbouring strata when the positions are stratified), and each
+// table entry keeps Σ over pairs of the squared difference of the pair's two values: with n lines
+// Var(mean) ≈ Σ_pairs (x_a - x_b)² / n², exact for independent lines and conservative only by
+// the mean differences of neighbouring strata when stratified (collapsed strata). When the
+// original and h_low trace the same number of lines, line k of both shares its random numbers
+// and Σ_pairs (a_a - a_b)(d_a - d_b) gives the covariance of the numerator and denominator
+// means: the delta method for the ratio then counts the correlation of the common random
+// numbers. S and T take their standard errors from these by the delta method (T or S fixed).
+//
+// Stopping rule (add_round(target)): after the first round only the ωo bins whose median
+// relative standard error of S (over ωi bins; single and ir, the larger) is above the target
+// are traced again, for every patch; the others keep their sums. Each task's mean divides by its
+// own line count, so unequal counts leave every estimate unbiased.
 //
 // Units: both heightfields in cell space (effective_brdf.h); `low` covers the same tile with
 // W_low = W / F cells (its heights in its own cell units). The low model's material (an
@@ -75,6 +87,8 @@ struct ScalingOptions {
     int roulette_start = 4;        ///< Russian roulette from this vertex (effective_brdf.h)
     double epsilon = 1e-2;         ///< ε of eq. 12, relative to the mean denominator (see finish())
     uint64_t seed = 1;
+    /// Stopping rule of add_round (pipeline: --target-error): 0 traces every task every round.
+    double target_error = 0;
     /// Called with the fraction of (patch, ωo bin) tasks of the current round done (any thread,
     /// serialised by the caller's responsibility: it is called under a mutex here).
     std::function<void(double)> progress;
@@ -91,7 +105,9 @@ struct ScalingStats {
     // Standard errors (delta method, numerator and denominator independent).
     double S_rel_se_median = 0, S_rel_se_p90 = 0, S_rel_se_max = 0;
     double S_rel_se_median_outer = 0;          ///< over ωo and ωi both in the outer ring of bins (grazing)
-    double T_rel_se_max = 0;
+    double T_rel_se_max = 0, T_rel_se_median = 0, T_ir_rel_se_median = 0;
+    size_t tasks_traced = 0;                   ///< (patch, ωo bin) tasks traced over all rounds
+    size_t estimator_bytes = 0;                ///< memory of the estimator's sums
     /// What the paper's sample counts (2500 paths per effective-BRDF estimate, §7.1) would give
     /// for the median of S with the per-line variances measured here: the noise target.
     double S_rel_se_median_paper_counts = 0, S_ir_rel_se_median_paper_counts = 0;
@@ -115,12 +131,25 @@ public:
     ScalingEstimator(const Heightfield &orig, const Material &base, const Heightfield &low,
                      const SvMultiLobe &low_material, const ScalingOptions &opt);
 
-    /// One more round of opt.orig_paths / opt.low_paths lines per (patch, ωo bin).
-    void add_round();
+    /// One more round of opt.orig_paths / opt.low_paths lines per (patch, ωo bin); after the
+    /// first round, with opt.target_error > 0, only for the ωo bins still above it (scaling.h,
+    /// "Stopping rule"). Returns the number of tasks traced (0: every bin is below the target).
+    size_t add_round();
     /// T and S (single and, with interreflections, ir) from the sums so far, and their stats.
     void finish(ScalingTables &single, ScalingTables &ir, ScalingStats &stats) const;
-    /// The median relative standard error of S (ir when estimated, else single) so far.
+    /// The median relative standard error of S (the larger of single and ir) so far.
     double current_S_rel_se() const;
+    /// Per ωo bin, the median over ωi bins of S's relative standard error (the larger of single
+    /// and ir); 0 where nothing was estimated.
+    std::vector<double> S_rel_se_per_wo_bin() const;
+    /// The numerator (the original's f_eff·cos θi, ir or single bounce) and denominator (h_low
+    /// with f'_low) of one (patch, ωi bin, ωo bin, channel) as means over the bins' directions
+    /// and the patch's visible points, with their standard errors (tests, diagnostics).
+    struct BinMoments {
+        double num = 0, num_se = 0, den = 0, den_se = 0;
+        uint32_t lines_orig = 0, lines_low = 0;
+    };
+    BinMoments bin_moments(int patch, int bi, int bo, int channel, bool ir) const;
     /// R(P, bin_i, bin_o) for one channel from the current sums (tests, diagnostics).
     double R(int patch, int bi, int bo, int channel, bool ir) const;
     const ScalingStats &stats() const { return m_stats; }
@@ -129,16 +158,19 @@ private:
     struct Task;  ///< one (patch, ωo bin) task of a round (scaling.cpp)
     void trace_task(size_t task, uint64_t round_seed);
     /// MPI: every rank's tasks of the round to every rank (add_round), counters summed.
-    void share_round(const ScalingStats &before);
+    void share_round(const ScalingStats &before, const std::vector<size_t> &active);
     double denom_mean(int ch) const;
+    /// finish(); with per_bo, also S_rel_se_per_wo_bin (and no rank-1 check: the stopping rule).
+    void finish_impl(ScalingTables &single, ScalingTables &ir, ScalingStats &stats, std::vector<double> *per_bo) const;
 
     const Heightfield &m_orig, &m_low;
     const Material &m_base;
     const SvMultiLobe &m_low_mat;
     ScalingOptions m_opt;
     int m_bins = 0;  // N²
-    // Flattened [patch][bo][bi][ch]:
-    std::vector<double> m_n1, m_n1sq, m_nir, m_nirsq, m_d, m_dsq;
+    // Flattened [patch][bo][bi][ch]: sums of the line values, Σ over line pairs of squared
+    // differences (*sq) and of products of numerator and denominator differences (*x).
+    std::vector<double> m_n1, m_n1sq, m_nir, m_nirsq, m_d, m_dsq, m_n1x, m_nirx;
     std::vector<uint32_t> m_count_orig, m_count_low;  // accepted lines per (patch, bo)
     double m_slope_orig = 0, m_slope_low = 0;  // max |∇h| (detail::max_slope)
     ScalingStats m_stats;
