@@ -67,9 +67,54 @@ std::shared_ptr<ShellShape> lod_shell(const LodSpec &spec, const std::shared_ptr
     return shell;
 }
 
-/// The prefiltered model of spec.model_dir, checked against the displacement: same map size,
-/// (warning) same height scale, and a level for every factor of the chain.
-prefilter::PrefilteredModel load_lod_model(const LodSpec &spec, const Displacement &disp) {
+/// Where the model's recorded map heights (input.map_samples) and the displacement's map differ:
+/// a message naming both, or "" when they agree (or either cannot say: older models, a transfer
+/// applied to the field, a zero scale).
+std::string map_mismatch(const prefilter::PrefilteredModel &model, const Displacement &disp) {
+    if (model.map_samples.empty() || (disp.transfer && !disp.untransferred && !disp.field_untransferred)) return "";
+    if (!disp.untransferred && !disp.field_untransferred && disp.scale == 0.f) return "";
+    const auto vertices = prefilter::map_fingerprint_vertices(model.map_width, model.map_height);
+    std::vector<double> scene(vertices.size());
+    double lo = INFINITY, hi = -INFINITY;
+    for (size_t k = 0; k < vertices.size(); ++k) {
+        const auto [i, j] = vertices[k];
+        const double f = disp.field->eval(double(i), double(j));
+        scene[k] = disp.untransferred        ? double(disp.untransferred->at(i, j))
+                   : disp.field_untransferred ? f
+                                              : (f - double(disp.offset)) / double(disp.scale);
+        lo = std::min({lo, scene[k], model.map_samples[k]});
+        hi = std::max({hi, scene[k], model.map_samples[k]});
+    }
+    const double tol = 1e-4 * std::max(hi - lo, 1e-12) + 1e-6 * std::max(std::abs(lo), std::abs(hi));
+    for (size_t k = 0; k < vertices.size(); ++k)
+        if (!(std::abs(scene[k] - model.map_samples[k]) <= tol)) {
+            const auto &in = model.manifest.value("input", nlohmann::json::object());
+            const std::string made_from = in.contains("map") ? in["map"].dump() : in.value("generator", nlohmann::json()).dump();
+            return fmt::format("the model '{}' was made from another map ({}) than the displacement's ({}): at vertex ({}, {}) "
+                               "the model's height is {:.6g} and the displacement's {:.6g} (map units)",
+                               model.dir, made_from, disp.source, vertices[k].first, vertices[k].second,
+                               model.map_samples[k], scene[k]);
+        }
+    return "";
+}
+
+/// Where one tile of the map is not model.tile_size world units on `shape` (its uv lengths over
+/// the tiling): a message naming both, or "" (also when the shape's uv lengths are unknown).
+std::string tile_mismatch(const prefilter::PrefilteredModel &model, const Displacement &disp, const Shape &shape) {
+    double lu = 0, lv = 0;
+    if (!shape.uv_world_length(lu, lv) || !(lu > 0) || !(lv > 0)) return "";
+    const double tu = lu / double(disp.tiling_u), tv = lv / double(disp.tiling_v), ts = model.tile_size;
+    if (std::abs(tu - ts) <= 1e-3 * ts && std::abs(tv - ts) <= 1e-3 * ts) return "";
+    return fmt::format("the model '{}' was made with --tile-size {:.6g} (world size of one tile of its map), but on this shape "
+                       "one tile of the displacement's map is {:.6g} x {:.6g} world units (uv lengths {:.6g} x {:.6g} over "
+                       "tiling {:g} x {:g}); `meso info` prints the values to prefilter with",
+                       model.dir, ts, tu, tv, lu, lv, disp.tiling_u, disp.tiling_v);
+}
+
+/// The prefiltered model of spec.model_dir, checked against the displacement and the shape: the
+/// same map (size and heights), wrap, height scale and tile size, and a level for every factor
+/// of the chain.
+prefilter::PrefilteredModel load_lod_model(const LodSpec &spec, const Displacement &disp, const Shape &shape) {
     const Properties &lp = spec.block;
     const std::string &dir = spec.model_dir;
     prefilter::PrefilteredModel model;
@@ -85,11 +130,13 @@ prefilter::PrefilteredModel load_lod_model(const LodSpec &spec, const Displaceme
     if (model.wrap != disp.wrap)
         lp.fail("model", fmt::format("the model '{}' was made with --wrap {}, the displacement's \"wrap\" is \"{}\"", dir,
                                      wrap_mode_name(model.wrap), wrap_mode_name(disp.wrap)));
+    if (std::string why = map_mismatch(model, disp); !why.empty()) lp.fail("model", why);
     const double hs = model.height_scale;
     if (std::abs(hs - double(disp.scale)) > 1e-5 * std::max(std::abs(hs), std::abs(double(disp.scale))))
-        fmt::print(stderr, "{}: {}: warning: the model '{}' was made with height_scale {} but the displacement's scale "
-                           "is {}: its NDFs and scaling functions describe other geometry\n",
-                   lp.file(), lp.key_path("model"), dir, hs, disp.scale);
+        lp.fail("model", fmt::format("the model '{}' was made with --height-scale {} but the displacement's scale is {}: "
+                                     "its NDFs and scaling functions would describe other geometry",
+                                     dir, hs, disp.scale));
+    if (std::string why = tile_mismatch(model, disp, shape); !why.empty()) lp.fail("model", why);
     for (size_t k = 1; k < spec.factors.size(); ++k) {
         const float f = spec.factors[k];
         if (f != std::floor(f) || !model.level_for_factor(int(f)))
@@ -169,7 +216,7 @@ std::vector<std::shared_ptr<Shape>> build_lod_levels(const LodSpec &spec, const 
     const std::shared_ptr<ShellShape> shell = lod_shell(spec, shape);
     const Displacement &disp = shell->displacement();
     std::optional<prefilter::PrefilteredModel> model;
-    if (spec.has_model()) model = load_lod_model(spec, disp);
+    if (spec.has_model()) model = load_lod_model(spec, disp, *shape);
     const std::vector<std::shared_ptr<Material>> materials = level_materials(spec, *shape, disp);
 
     auto group = std::make_shared<LodGroup>();

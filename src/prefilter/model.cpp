@@ -182,6 +182,15 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
     m.height_scale = need(in_j, "height_scale", where + " input").get<double>();
     m.tile_size = need(in_j, "tile_size", where + " input").get<double>();
     m.base = need(in_j, "base", where + " input");
+    if (in_j.contains("map_samples")) {
+        const auto &ms = in_j["map_samples"];
+        if (!ms.is_array() || ms.size() != size_t(kMapFingerprintSize))
+            throw MesoError(fmt::format("{}: input.map_samples: expected {} numbers", where, kMapFingerprintSize));
+        for (const auto &x : ms) {
+            if (!x.is_number()) throw MesoError(fmt::format("{}: input.map_samples: expected numbers", where));
+            m.map_samples.push_back(x.get<double>());
+        }
+    }
     const std::string wrap = in_j.value("wrap", std::string("repeat"));
     if (wrap != "repeat" && wrap != "clamp" && wrap != "mirror")
         throw MesoError(fmt::format("{}: input.wrap: expected \"repeat\", \"clamp\" or \"mirror\", got \"{}\"", where, wrap));
@@ -250,6 +259,17 @@ void PrefilteredModel::save(const std::string &out) const {
     j["levels"] = levels_j;
     // The manifest last, atomically: a directory without it is not a model.
     write_text_atomic((fs::path(out) / "manifest.json").string(), j.dump(2) + "\n");
+}
+
+std::vector<std::pair<int, int>> map_fingerprint_vertices(int w, int h) {
+    // R2 sequence (Roberts 2018, the plastic constant): well spread for any w x h.
+    const double g = 1.32471795724474602596, a1 = 1.0 / g, a2 = 1.0 / (g * g);
+    std::vector<std::pair<int, int>> v;
+    for (int k = 0; k < kMapFingerprintSize; ++k) {
+        const double x = std::fmod(0.5 + a1 * (k + 1), 1.0), y = std::fmod(0.5 + a2 * (k + 1), 1.0);
+        v.push_back({std::min(w - 1, int(x * w)), std::min(h - 1, int(y * h))});
+    }
+    return v;
 }
 
 const PrefilteredLevel *PrefilteredModel::level_for_factor(int factor) const {

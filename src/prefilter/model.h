@@ -121,7 +121,16 @@ struct PrefilteredModel {
     const PrefilteredLevel *level_for_factor(int factor) const;
     /// The levels' factors, "2, 4", for messages naming what a model has.
     std::string factor_list() const;
+    /// input.map_samples: heights (map units) of the prefiltered map at map_fingerprint_vertices
+    /// (empty in models made before it was recorded).
+    std::vector<double> map_samples;
 };
+
+/// kMapFingerprintSize vertices of a w x h map spread by a fixed low-discrepancy rule: the model
+/// records the map's heights there (input.map_samples) so that a scene with another map of the
+/// same size is told (lod/lod_build.cpp).
+constexpr int kMapFingerprintSize = 64;
+std::vector<std::pair<int, int>> map_fingerprint_vertices(int w, int h);
 
 /// Lobes image of a level (see the header) and back.
 Image lobes_to_image(const std::vector<PatchNdf> &ndf, int width, int height, int lobes);

@@ -76,6 +76,9 @@ Inputs load_inputs(const PipelineOptions &o) {
     in.record["map_width"] = map.width;
     in.record["map_height"] = map.height;
     in.record["height_scale"] = o.height_scale;
+    nlohmann::json samples = nlohmann::json::array();
+    for (auto [i, j] : map_fingerprint_vertices(map.width, map.height)) samples.push_back(map.at(i, j));
+    in.record["map_samples"] = samples;
     in.record["tile_size"] = o.tile_size * (in.wrap == WrapMode::Repeat ? 1 : 2);  // of the map prefiltered
     in.record["base"] = in.base_json;
     in.record["base_dir"] = base_dir.empty() ? fs::current_path().string() : fs::absolute(base_dir).string();
