@@ -1,0 +1,284 @@
+// Light sampling in float and the choice between solid-angle and area sampling (issue 22):
+// the float trigonometry against libm's double functions; the float spherical rectangle's solid
+// angle against the double one (grazing, tiny, huge) and its samples against the solid angles of
+// a grid of cells (chi-square); a rectangular area light's samples against its own pdf() over
+// the rectangle from points where it chooses each strategy (chi-square), and pdf() equal to the
+// pdf that sample() reports. Fixed seeds; chi-square thresholds at the 1e-4 upper quantile.
+#include <gtest/gtest.h>
+#include <cmath>
+#include <vector>
+#include <nlohmann/json.hpp>
+#include "core/properties.h"
+#include "core/registry.h"
+#include "geometry/shape.h"
+#include "lights/float_trig.h"
+#include "lights/light.h"
+#include "lights/spherical_rectangle.h"
+#include "sampling/rng.h"
+#include "light_test_util.h"
+
+using namespace meso;
+using namespace meso::test;
+
+namespace {
+
+double rect_solid_angle(Vec3 o, Vec3 s, Vec3 ex, Vec3 ey) {
+    return sphtri::solid_angle(o, s, s + ex, s + ex + ey) + sphtri::solid_angle(o, s, s + ex + ey, s + ey);
+}
+
+/// Chi-square statistic of observed counts against expected ones, pooling cells expected below
+/// 5 into one; `dof` out: the number of cells used minus 1.
+double chi_square(const std::vector<double> &obs, const std::vector<double> &expect, int &dof) {
+    double chi2 = 0, pool_o = 0, pool_e = 0;
+    dof = -1;
+    for (size_t k = 0; k < obs.size(); ++k) {
+        if (expect[k] < 5) {
+            pool_o += obs[k], pool_e += expect[k];
+            continue;
+        }
+        chi2 += (obs[k] - expect[k]) * (obs[k] - expect[k]) / expect[k];
+        ++dof;
+    }
+    if (pool_e >= 5) chi2 += (pool_o - pool_e) * (pool_o - pool_e) / pool_e, ++dof;
+    return chi2;
+}
+
+/// Upper 1e-4 quantile of chi-square with k degrees of freedom (Wilson-Hilferty).
+double chi2_quantile_1e4(int k) {
+    const double z = 3.719;  // standard normal 1 - 1e-4
+    const double a = 2.0 / (9.0 * k);
+    return k * std::pow(1 - a + z * std::sqrt(a), 3);
+}
+
+}  // namespace
+
+TEST(FloatTrig, WithinStatedError) {
+    PCG32 rng(1);
+    double worst_atan = 0, worst_sc = 0;
+    for (int i = 0; i < 200000; ++i) {
+        // Magnitudes across many octaves, every quadrant.
+        const float y = (rng.next_float() - 0.5f) * std::ldexp(1.f, int(rng.next_float() * 40) - 20);
+        const float x = (rng.next_float() - 0.5f) * std::ldexp(1.f, int(rng.next_float() * 40) - 20);
+        worst_atan = std::max(worst_atan, std::abs(double(atan2_approx(y, x)) - std::atan2(double(y), double(x))));
+        const float t = rng.next_float() * 2.f * Pi;
+        float s, c;
+        sincos_0_2pi(t, s, c);
+        worst_sc = std::max({worst_sc, std::abs(s - std::sin(double(t))), std::abs(c - std::cos(double(t)))});
+    }
+    for (float t : {0.f, PiOver2, Pi, 1.5f * Pi, 2.f * Pi, 1e-30f}) {
+        float s, c;
+        sincos_0_2pi(t, s, c);
+        worst_sc = std::max({worst_sc, std::abs(s - std::sin(double(t))), std::abs(c - std::cos(double(t)))});
+    }
+    EXPECT_LT(worst_atan, 4e-7);
+    EXPECT_LT(worst_sc, 3e-7);
+    EXPECT_EQ(atan2_approx(0.f, 0.f), 0.f);
+    EXPECT_NEAR(atan2_approx(0.f, -1.f), Pi, 1e-7);
+    EXPECT_NEAR(atan2_approx(-1.f, 0.f), -PiOver2, 1e-7);
+}
+
+TEST(FloatSphericalRectangle, SolidAngleMatchesDouble) {
+    // Random rectangles seen from random points at distances over six decades: the float S is
+    // within 1e-6 sr of the double one below 0.1 sr (1e-5 up to 6.22 sr), hence within 1e-4
+    // relative above the 1e-2 sr where area.cpp switches from double to float.
+    PCG32 rng(2);
+    double worst_abs = 0, worst_abs_any = 0, worst_rel_above = 0;
+    int above = 0;
+    for (int i = 0; i < 100000; ++i) {
+        const float scale = std::ldexp(1.f, int(rng.next_float() * 20) - 10);
+        const Vec3 ex = Vec3(rng.next_float() + 0.01f, 0, 0) * scale, ey = Vec3(0, rng.next_float() + 0.01f, 0) * scale;
+        const float dist = std::ldexp(1.f, int(rng.next_float() * 20) - 10) * scale;
+        const Vec3 o((rng.next_float() - 0.5f) * 4 * dist, (rng.next_float() - 0.5f) * 4 * dist,
+                     (rng.next_float() - 0.5f) * 2 * dist);
+        const Vec3 s(0, 0, 0);
+        const sphrect::SphericalRectangle d(o, s, ex, ey);
+        const sphrect::FloatSphericalRectangle f(o, sphrect::RectFrame(s, ex, ey));
+        if (!d.valid) continue;
+        ASSERT_TRUE(f.valid || d.S < 1e-5) << d.S;
+        if (!f.valid) continue;
+        const double err = std::abs(double(f.S) - d.S);
+        // A tiny S may come out as 2 pi - epsilon (the product of the e^{i g} is e^{i S} and
+        // S = 0 is 2 pi): area.cpp rejects every S above 6.22 sr, so those never count.
+        if (f.S > 6.22f) {
+            EXPECT_TRUE(d.S > 6.2 || d.S < 1e-5) << d.S << " " << f.S;
+            continue;
+        }
+        if (d.S < 0.1) worst_abs = std::max(worst_abs, err);
+        worst_abs_any = std::max(worst_abs_any, err);
+        if (d.S >= 1e-2) {
+            worst_rel_above = std::max(worst_rel_above, err / d.S);
+            ++above;
+        }
+    }
+    EXPECT_GT(above, 10000);
+    EXPECT_LT(worst_abs, 1e-6);      // S < 0.1 sr
+    EXPECT_LT(worst_abs_any, 1e-5);  // S up to 6.22 sr
+    EXPECT_LT(worst_rel_above, 1e-4);
+    std::printf("float S: worst absolute error %.3g sr below 0.1 sr, %.3g overall; worst relative above 1e-2 sr %.3g\n",
+                worst_abs, worst_abs_any, worst_rel_above);
+}
+
+TEST(FloatSphericalRectangle, SamplesAreUniformInSolidAngle) {
+    // Chi-square of the sample counts over an 8 x 8 grid of the rectangle against the cells'
+    // solid angles (double Van Oosterom-Strackee): off-axis, grazing and near, nearly a
+    // hemisphere, small (just above the 1e-2 sr where area.cpp uses the float version).
+    struct Config {
+        const char *name;
+        Vec3 o, s, ex, ey;
+    };
+    const Config cases[] = {
+        {"off-axis", {0.2f, -0.1f, 0}, {-0.5f, -0.5f, 0.7f}, {1, 0, 0}, {0, 1, 0}},
+        {"grazing", {0, 0, 0}, {0.5f, -2, 0.05f}, {2, 0, 0}, {0, 3, 0}},
+        {"huge", {0, 0, 0}, {-10, -10, 0.5f}, {20, 0, 0}, {0, 20, 0}},
+        {"small", {0, 0, 0}, {1, 2, 9}, {0.5f, 0, 0}, {0, 0.3f, 0.2f}},
+        {"below", {0.3f, 0.2f, 1}, {-1, -1, -0.2f}, {0, 2, 0}, {1.5f, 0, 0}},
+    };
+    PCG32 rng(7);
+    for (const Config &c : cases) {
+        const sphrect::FloatSphericalRectangle r(c.o, sphrect::RectFrame(c.s, c.ex, c.ey));
+        const double S = rect_solid_angle(c.o, c.s, c.ex, c.ey);
+        ASSERT_TRUE(r.valid) << c.name;
+        EXPECT_NEAR(r.S, S, 2e-6 + 1e-5 * S) << c.name;
+        const int G = 8, N = 200000;
+        std::vector<double> obs(G * G, 0.0), expect(G * G, 0.0);
+        const Vec3 ux = c.ex * (1.f / G), uy = c.ey * (1.f / G);
+        for (int j = 0; j < G; ++j)
+            for (int i = 0; i < G; ++i)
+                expect[j * G + i] = N * rect_solid_angle(c.o, c.s + ux * float(i) + uy * float(j), ux, uy) / S;
+        const double lx2 = length_squared(c.ex), ly2 = length_squared(c.ey);
+        for (int n = 0; n < N; ++n) {
+            Vec3 p;
+            Vec2 ab;
+            ASSERT_TRUE(r.sample({rng.next_float(), rng.next_float()}, p, ab)) << c.name;
+            const Vec3 d = p - c.s;
+            const double a = dot(d, c.ex) / lx2, b = dot(d, c.ey) / ly2;
+            ASSERT_NEAR(a, ab.x, 1e-4) << c.name;
+            ASSERT_NEAR(b, ab.y, 1e-4) << c.name;
+            ASSERT_NEAR(dot(d, cross(c.ex, c.ey)), 0.0, 1e-4 * std::sqrt(lx2 * ly2)) << c.name;  // on the rectangle
+            obs[std::min(G - 1, int(ab.y * G)) * G + std::min(G - 1, int(ab.x * G))] += 1;
+        }
+        int dof;
+        const double chi2 = chi_square(obs, expect, dof);
+        EXPECT_LT(chi2, chi2_quantile_1e4(dof)) << c.name << " dof " << dof;
+    }
+}
+
+namespace {
+
+/// A planar quad emitter s + a ex + b ey (a, b in [0, 1]) as two triangles (s, s + ex + ey,
+/// s + ex) and (s, s + ey, s + ex + ey), emitting towards -z when ex x ey points along +z.
+TriangleMesh quad_mesh(Vec3 s, Vec3 ex, Vec3 ey) {
+    return make_mesh({s, s + ex, s + ex + ey, s + ey}, {0, 2, 1, 0, 3, 2});
+}
+
+/// Samples of `light` from p binned over a G x G grid of the quad (s, ex, ey), against
+/// N ∫_cell pdf(ω) dω computed from the light's own pdf() (midpoint rule on 32 x 32 points per
+/// cell, written over the area: pdf · |cos θ_l| / d^2 dA). Also checks that pdf() returns the
+/// pdf that sample() reported. Returns the fraction of samples that succeeded.
+double expect_samples_follow_pdf(const Light &light, Vec3 s, Vec3 ex, Vec3 ey, Vec3 p, const char *name,
+                                 uint64_t seed) {
+    const int G = 8, K = 32, N = 200000;
+    const Vec3 n = normalize(cross(ex, ey));
+    const double area = length(cross(ex, ey));
+    // (a, b) of a point of the quad's plane: solve d = a ex + b ey.
+    const double exx = dot(ex, ex), exy = dot(ex, ey), eyy = dot(ey, ey), det = exx * eyy - exy * exy;
+    auto coords = [&](Vec3 q, double &a, double &b) {
+        const Vec3 d = q - s;
+        const double dx = dot(d, ex), dy = dot(d, ey);
+        a = (eyy * dx - exy * dy) / det;
+        b = (exx * dy - exy * dx) / det;
+    };
+    const LightSampleContext ctx{p, Vec3()};
+    std::vector<double> expect(G * G, 0.0), obs(G * G, 0.0);
+    for (int j = 0; j < G * K; ++j)
+        for (int i = 0; i < G * K; ++i) {
+            const float a = (i + 0.5f) / (G * K), b = (j + 0.5f) / (G * K);
+            const Vec3 y = s + ex * a + ey * b;
+            const Vec3 d = y - p;
+            const float d2 = length_squared(d);
+            const Vec3 w = d / std::sqrt(d2);
+            const uint32_t prim = b < a ? 0 : 1;
+            const double pdf = light.pdf(ctx, w, LightHit{y, n, prim});
+            expect[(j / K) * G + i / K] += N * pdf * absdot(n, w) / d2 * area / (G * K * G * K);
+        }
+    PCG32 rng(seed);
+    int ok = 0;
+    for (int k = 0; k < N; ++k) {
+        LightSample ls;
+        if (!light.sample(ctx, {rng.next_float(), rng.next_float()}, ls)) continue;
+        ++ok;
+        const Vec3 y = p + ls.wi * ls.dist;
+        double a, b;
+        coords(y, a, b);
+        const uint32_t prim = b < a ? 0 : 1;
+        const float pdf = light.pdf(ctx, ls.wi, LightHit{y, n, prim});
+        EXPECT_NEAR(pdf, ls.pdf, 1e-5f * ls.pdf) << name;
+        obs[std::clamp(int(b * G), 0, G - 1) * G + std::clamp(int(a * G), 0, G - 1)] += 1;
+    }
+    int dof;
+    const double chi2 = chi_square(obs, expect, dof);
+    EXPECT_LT(chi2, chi2_quantile_1e4(dof)) << name << " dof " << dof;
+    std::printf("%s at (%g, %g, %g): chi2 %.1f, %d dof\n", name, p.x, p.y, p.z, chi2, dof);
+    return double(ok) / N;
+}
+
+}  // namespace
+
+TEST(AreaLight, RectangleSamplesFollowPdfInEveryRegime) {
+    // A one-sided 2 x 1 rectangle at z = 2 emitting downwards, seen from points where it chooses
+    // the float spherical rectangle (near), area sampling (far: rho < 1.5), the double spherical
+    // rectangle (grazing and near: S < 1e-2 sr), spherical triangles (nearly a hemisphere: S >
+    // 6.22 sr); from behind it samples nothing and pdf() is 0.
+    const Vec3 s(-1, -0.5f, 2), ex(2, 0, 0), ey(0, 1, 0);
+    TestMeshShape shape(quad_mesh(s, ex, ey));
+    ASSERT_LT(shape.normal(0).z, 0.f);
+    auto l = make_light({{"type", "area"}, {"radiance", 1}});
+    l->set_shape(&shape);
+    struct At {
+        const char *name;
+        Vec3 p;
+    };
+    const At points[] = {
+        {"near", {0.3f, 0.1f, 0}}, {"far", {3, 1, -20}}, {"grazing", {3.5f, 0.2f, 1.99f}}, {"side", {2.5f, 0, 1.2f}}};
+    uint64_t seed = 1;
+    for (const At &at : points) EXPECT_GT(expect_samples_follow_pdf(*l, s, ex, ey, at.p, at.name, seed++), 0.99) << at.name;
+    // Nearly a hemisphere (S > 6.22 sr): each triangle (chosen with probability 1/2 by area)
+    // solid-angle sampled, pdf 1 / (2 Omega_t). Too peaked for the midpoint rule above: count
+    // the samples per triangle and compare the pdf with both triangles' solid angles.
+    const Vec3 q(0.1f, 0.05f, 1.9999f);
+    const double om0 = sphtri::solid_angle(q, s, s + ex + ey, s + ex), om1 = sphtri::solid_angle(q, s, s + ey, s + ex + ey);
+    ASSERT_GT(om0 + om1, 6.22);
+    PCG32 rng(9);
+    const int N = 20000;
+    int in0 = 0;
+    for (int k = 0; k < N; ++k) {
+        LightSample ls;
+        ASSERT_TRUE(l->sample({q, Vec3()}, {rng.next_float(), rng.next_float()}, ls));
+        const Vec3 y = q + ls.wi * ls.dist;
+        // The triangle: by position, except within float round-off of the diagonal, where the
+        // two pdfs (nearly equal here) tell.
+        const double t = (y.y - s.y) / ey.y - (y.x - s.x) / ex.x;
+        const uint32_t prim = std::abs(t) > 1e-5 ? (t < 0 ? 0 : 1) : (std::abs(ls.pdf - 0.5 / om0) < std::abs(ls.pdf - 0.5 / om1) ? 0 : 1);
+        in0 += prim == 0;
+        EXPECT_NEAR(ls.pdf, 0.5 / (prim == 0 ? om0 : om1), 1e-5 * ls.pdf);
+        EXPECT_NEAR(l->pdf({q, Vec3()}, ls.wi, LightHit{y, shape.normal(0), prim}), ls.pdf, 1e-5 * ls.pdf);
+    }
+    EXPECT_NEAR(in0, N / 2, 5 * std::sqrt(N * 0.25));
+    // Behind the emitter: no samples, pdf 0.
+    LightSample ls;
+    EXPECT_FALSE(l->sample({Vec3(0, 0, 3), Vec3()}, {0.5f, 0.5f}, ls));
+    EXPECT_EQ(l->pdf({Vec3(0, 0, 3), Vec3()}, Vec3(0, 0, -1), LightHit{Vec3(0, 0, 2), Vec3(0, 0, -1), 0}), 0.f);
+}
+
+TEST(AreaLight, MeshSamplesFollowPdfInEveryRegime) {
+    // A sheared quad (not a rectangle: per-triangle choices) and the same in "area" mode.
+    const Vec3 s(-1, -0.5f, 2), ex(2, 0, 0), ey(0.6f, 1, 0);
+    TestMeshShape shape(quad_mesh(s, ex, ey));
+    for (const char *mode : {"solid_angle", "area"}) {
+        auto l = make_light({{"type", "area"}, {"radiance", 1}, {"sampling", mode}});
+        l->set_shape(&shape);
+        uint64_t seed = 10;
+        for (Vec3 p : {Vec3(0.3f, 0.1f, 0), Vec3(3, 1, -20), Vec3(2.5f, 0, 1.2f), Vec3(0.1f, 0.05f, 1.9f)})
+            EXPECT_GT(expect_samples_follow_pdf(*l, s, ex, ey, p, mode, seed++), 0.99);
+    }
+}
