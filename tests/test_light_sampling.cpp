@@ -14,6 +14,7 @@
 #include "lights/float_trig.h"
 #include "lights/light.h"
 #include "lights/spherical_rectangle.h"
+#include "sampling/distribution.h"
 #include "sampling/rng.h"
 #include "light_test_util.h"
 
@@ -280,5 +281,50 @@ TEST(AreaLight, MeshSamplesFollowPdfInEveryRegime) {
         uint64_t seed = 10;
         for (Vec3 p : {Vec3(0.3f, 0.1f, 0), Vec3(3, 1, -20), Vec3(2.5f, 0, 1.2f), Vec3(0.1f, 0.05f, 1.9f)})
             EXPECT_GT(expect_samples_follow_pdf(*l, s, ex, ey, p, mode, seed++), 0.99);
+    }
+}
+
+TEST(Distribution2D, SkewedTableSamplesFollowPdf) {
+    // A 37 x 23 table (not a multiple of the guide's 8 cells) with a "sun" a million times the
+    // sky, a black row and a black column, zero weights next to tiny ones: sample_continuous()
+    // reports pdf(p) exactly, the cell pdfs sum to 1, and the sample counts per cell follow them
+    // (chi-square, cells expected below 5 pooled).
+    const int nu = 37, nv = 23;
+    std::vector<float> f(nu * nv);
+    PCG32 rng(4);
+    for (int v = 0; v < nv; ++v)
+        for (int u = 0; u < nu; ++u) f[v * nu + u] = (v == 5 || u == 11) ? 0.f : rng.next_float() < 0.1f ? 1e-9f : 1.f + rng.next_float();
+    f[17 * nu + 30] = 1e6f;
+    Distribution2D d(f, nu, nv);
+    double total = 0;
+    std::vector<double> expect(nu * nv), obs(nu * nv, 0.0);
+    const int N = 400000;
+    for (int v = 0; v < nv; ++v)
+        for (int u = 0; u < nu; ++u) {
+            const double p = d.pdf({(u + 0.5f) / nu, (v + 0.5f) / nv}) / (nu * nv);
+            total += p;
+            expect[v * nu + u] = N * p;
+            if (v == 5 || u == 11) {
+                EXPECT_EQ(p, 0.0);
+            }
+        }
+    EXPECT_NEAR(total, 1.0, 1e-5);
+    for (int k = 0; k < N; ++k) {
+        float pdf;
+        const Vec2 p = d.sample_continuous({rng.next_float(), rng.next_float()}, &pdf);
+        ASSERT_GT(pdf, 0.f);
+        ASSERT_EQ(pdf, d.pdf(p));
+        obs[std::min(nv - 1, int(p.y * nv)) * nu + std::min(nu - 1, int(p.x * nu))] += 1;
+    }
+    int dof;
+    const double chi2 = chi_square(obs, expect, dof);
+    EXPECT_LT(chi2, chi2_quantile_1e4(dof)) << dof;
+    // The extremes of u land in cells of non-zero probability.
+    for (float u : {0.f, OneMinusEpsilon}) {
+        for (float v : {0.f, OneMinusEpsilon}) {
+            float pdf;
+            d.sample_continuous({u, v}, &pdf);
+            EXPECT_GT(pdf, 0.f);
+        }
     }
 }
