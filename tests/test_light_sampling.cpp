@@ -17,6 +17,7 @@
 #include "sampling/distribution.h"
 #include "sampling/rng.h"
 #include "light_test_util.h"
+#include "render_test_util.h"
 
 using namespace meso;
 using namespace meso::test;
@@ -327,4 +328,78 @@ TEST(Distribution2D, SkewedTableSamplesFollowPdf) {
             EXPECT_GT(pdf, 0.f);
         }
     }
+}
+
+namespace {
+
+/// A small closed box (diffuse walls, a rough gold sphere) lit by a ceiling quad (near the
+/// walls: solid-angle sampled; far from the floor's centre: area sampled) and a 128-triangle
+/// sphere emitter (per-triangle choices), path tracer with MIS and Russian roulette.
+const char *kConvergenceScene = R"({
+  "camera": {"type": "perspective", "origin": [0, 1.0, 3.4], "target": [0, 0.9, 0], "fov": 50, "width": 40, "height": 30},
+  "integrator": {"type": "path", "max_depth": 4},
+  "sampler": {"type": "independent", "sample_count": 4},
+  "shapes": [
+    {"type": "uvsphere", "rings": 24, "segments": 32,
+     "material": {"type": "conductor", "material": "Au", "distribution": "ggx", "alpha": 0.3},
+     "to_world": {"scale": 0.5, "translate": [-0.3, 0.5, 0]}},
+    {"type": "rectangle", "material": {"type": "diffuse", "reflectance": 0.6}, "to_world": {"scale": 1.5, "rotate": {"axis": [1, 0, 0], "angle": -90}}},
+    {"type": "rectangle", "material": {"type": "diffuse", "reflectance": 0.6}, "to_world": {"scale": 1.5, "translate": [0, 1.5, -1.5]}},
+    {"type": "rectangle", "material": {"type": "diffuse", "reflectance": [0.6, 0.2, 0.2]}, "to_world": {"scale": 1.5, "rotate": {"axis": [0, 1, 0], "angle": 90}, "translate": [-1.5, 1.5, 0]}},
+    {"type": "rectangle", "material": {"type": "diffuse", "reflectance": 0.6}, "to_world": {"scale": 1.5, "rotate": {"axis": [1, 0, 0], "angle": 90}, "translate": [0, 3, 0]}},
+    {"type": "rectangle", "emitter": {"type": "area", "radiance": 12}, "to_world": {"scale": 0.5, "rotate": {"axis": [1, 0, 0], "angle": 90}, "translate": [0, 2.99, 0]}},
+    {"type": "uvsphere", "rings": 8, "segments": 8, "emitter": {"type": "area", "radiance": 4},
+     "to_world": {"scale": 0.15, "translate": [0.8, 0.4, 0.5]}}
+  ],
+  "lights": []
+})";
+
+double mse(const Image &a, const Image &b) {
+    double s = 0;
+    for (size_t i = 0; i < a.data.size(); ++i) s += double(a.data[i] - b.data[i]) * (a.data[i] - b.data[i]);
+    return s / double(a.data.size());
+}
+
+}  // namespace
+
+TEST(LightSamplingConvergence, MseFallsAsOneOverSpp) {
+    // Unbiased estimators: E[MSE(s)] = sigma^2 (1/s + 1/R) against an independent reference of
+    // R spp. A bias b adds b^2 and flattens the curve at high s. Fit log MSE against
+    // log(1/s + 1/R) over s = 4 .. 64 (4 seeds each): the slope must be 1 within 4 standard errors
+    // (from the seeds' spread of each MSE), and sigma^2 estimated at 64 spp must agree with the
+    // one at 4 spp within their standard errors.
+    auto scene = meso::test::load_json_scene("light_convergence.json", kConvergenceScene);
+    const int R = 2048;
+    const RenderResult ref = meso::test::render_scene(*scene, R, 0, 1000);
+    ASSERT_EQ(ref.nan_count, 0);
+    const int spps[] = {4, 8, 16, 32, 64}, seeds = 4;
+    std::vector<double> xs, ys, ws, sig2, sig2_se;
+    for (int s : spps) {
+        std::vector<double> m;
+        for (int k = 0; k < seeds; ++k) {
+            const RenderResult r = meso::test::render_scene(*scene, s, 0, 17 * s + k);
+            ASSERT_EQ(r.nan_count, 0);
+            m.push_back(mse(r.image, ref.image));
+        }
+        double mean = 0, var = 0;
+        for (double v : m) mean += v / seeds;
+        for (double v : m) var += (v - mean) * (v - mean) / (seeds - 1);
+        const double se = std::sqrt(var / seeds), scale = 1.0 / s + 1.0 / R;
+        xs.push_back(std::log(scale));
+        ys.push_back(std::log(mean));
+        ws.push_back(1.0 / std::max(1e-6, (se / mean) * (se / mean)));  // 1 / var(log MSE)
+        sig2.push_back(mean / scale);
+        sig2_se.push_back(se / scale);
+        std::printf("spp %3d: MSE %.4g +- %.2g, sigma^2 %.4g\n", s, mean, se, mean / scale);
+    }
+    // Weighted least squares for the slope.
+    double sw = 0, sx = 0, sy = 0, sxx = 0, sxy = 0;
+    for (size_t i = 0; i < xs.size(); ++i) {
+        sw += ws[i], sx += ws[i] * xs[i], sy += ws[i] * ys[i];
+        sxx += ws[i] * xs[i] * xs[i], sxy += ws[i] * xs[i] * ys[i];
+    }
+    const double det = sw * sxx - sx * sx, slope = (sw * sxy - sx * sy) / det, slope_se = std::sqrt(sw / det);
+    std::printf("slope %.4f +- %.4f\n", slope, slope_se);
+    EXPECT_NEAR(slope, 1.0, 4 * slope_se + 0.02);
+    EXPECT_NEAR(sig2.back(), sig2.front(), 4 * std::hypot(sig2_se.back(), sig2_se.front()));
 }
