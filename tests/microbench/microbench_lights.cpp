@@ -30,6 +30,7 @@
 #include "image/image.h"
 #include "lights/envmap.h"
 #include "lights/light.h"
+#include "median_reporter.h"
 
 namespace {
 
@@ -92,18 +93,6 @@ Image sky(int w, int h) {
     return img;
 }
 
-class MedianReporter : public benchmark::ConsoleReporter {
-public:
-    std::map<std::string, double> ns;
-    void ReportRuns(const std::vector<Run> &runs) override {
-        ConsoleReporter::ReportRuns(runs);
-        for (const Run &r : runs) {
-            const bool median = r.run_type == Run::RT_Aggregate && r.aggregate_name == "median";
-            const bool single = r.run_type == Run::RT_Iteration && r.repetitions <= 1;
-            if (median || single) ns[r.run_name.function_name] = r.GetAdjustedCPUTime();
-        }
-    }
-};
 
 }  // namespace
 
@@ -154,7 +143,7 @@ int main(int argc, char **argv) {
     for (const Entry &e : entries)
         benchmark::RegisterBenchmark(("light_sample/" + e.name).c_str(), light_sample, e.light.get(), e.in, e.prims)
             ->Unit(benchmark::kNanosecond);
-    MedianReporter rep;
+    meso::bench::MedianReporter rep;
     benchmark::RunSpecifiedBenchmarks(&rep);
     std::printf("\nMedian CPU ns per light sample (sample + pdf of the sampled direction)\n");
     for (const auto &[name, t] : rep.ns) std::printf("  %-28s %8.1f\n", name.c_str(), t);
