@@ -165,6 +165,101 @@ TEST(FloatSphericalRectangle, SamplesAreUniformInSolidAngle) {
     }
 }
 
+TEST(FloatSphericalTriangle, SolidAngleMatchesDouble) {
+    // Random triangles (slivers included) from random points at distances over six decades:
+    // within 1e-5 sr of the double Van Oosterom-Strackee solid angle below 0.1 sr, 3e-5 up to
+    // 6.22 sr, 1e-4 relative from the 1e-2 sr where area.cpp uses it. A tiny S may come out as 2 pi - epsilon, which
+    // area.cpp rejects with everything above 6.22 sr.
+    PCG32 rng(12);
+    double worst_small = 0, worst_any = 0, worst_rel = 0;
+    int used = 0;
+    for (int i = 0; i < 100000; ++i) {
+        const float scale = std::ldexp(1.f, int(rng.next_float() * 20) - 10);
+        auto rnd = [&] { return Vec3(rng.next_float() - 0.5f, rng.next_float() - 0.5f, rng.next_float() - 0.5f) * scale; };
+        const Vec3 p0 = rnd(), p1 = rnd(), p2 = rnd();
+        const float dist = std::ldexp(1.f, int(rng.next_float() * 20) - 10) * scale;
+        const Vec3 o = normalize(rnd()) * dist;
+        const double d = sphtri::solid_angle(o, p0, p1, p2);
+        const sphtri::FloatSphericalTriangle f(o, p0, p1, p2);
+        if (!f.valid || !(d > 0)) continue;
+        if (f.S > 6.22f) {
+            EXPECT_TRUE(d > 6.2 || d < 1e-5) << d << " " << f.S;
+            continue;
+        }
+        const double err = std::abs(double(f.S) - d);
+        if (d < 0.1) worst_small = std::max(worst_small, err);
+        worst_any = std::max(worst_any, err);
+        if (d >= 1e-2) worst_rel = std::max(worst_rel, err / d), ++used;
+    }
+    EXPECT_GT(used, 5000);
+    EXPECT_LT(worst_small, 1e-5);
+    EXPECT_LT(worst_any, 3e-5);
+    EXPECT_LT(worst_rel, 1e-4);
+    std::printf("float triangle S: worst absolute error %.3g sr below 0.1 sr, %.3g overall; relative from 1e-2 sr %.3g\n",
+                worst_small, worst_any, worst_rel);
+}
+
+TEST(FloatSphericalTriangle, SamplesAreUniformInSolidAngle) {
+    // Chi-square of the counts in the 4^3 = 64 sub-triangles of three midpoint subdivisions
+    // against their solid angles (double), for a near, a grazing and a large triangle.
+    struct Config {
+        const char *name;
+        Vec3 o, p0, p1, p2;
+    };
+    const Config cases[] = {
+        {"near", {0.1f, 0, 0}, {-1, -0.5f, 2}, {1, -0.3f, 2.2f}, {0.2f, 1, 1.8f}},
+        {"grazing", {2.2f, 0.2f, 2.25f}, {-1, -0.5f, 2}, {1, -0.5f, 2}, {0, 1, 2}},
+        {"large", {0, 0, 1.9f}, {-3, -3, 2}, {3, -3, 2}, {0, 4, 2}},
+        {"small", {0, 0, 0}, {1, 1, 2.5f}, {1.8f, 1, 2.5f}, {1, 1.7f, 2.7f}},
+    };
+    PCG32 rng(13);
+    for (const Config &c : cases) {
+        const sphtri::FloatSphericalTriangle f(c.o, c.p0, c.p1, c.p2);
+        const double S = sphtri::solid_angle(c.o, c.p0, c.p1, c.p2);
+        ASSERT_TRUE(f.valid) << c.name;
+        ASSERT_GE(S, 1e-2) << c.name;
+        EXPECT_NEAR(f.S, S, 1e-4 * S) << c.name;
+        // Sub-triangles in barycentric space: level-3 midpoint subdivision (64 cells).
+        struct Tri {
+            Vec3 b0, b1, b2;  // barycentric corners
+        };
+        std::vector<Tri> cells = {{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
+        for (int level = 0; level < 3; ++level) {
+            std::vector<Tri> next;
+            for (const Tri &t : cells) {
+                const Vec3 m01 = (t.b0 + t.b1) * 0.5f, m12 = (t.b1 + t.b2) * 0.5f, m20 = (t.b2 + t.b0) * 0.5f;
+                next.push_back({t.b0, m01, m20}), next.push_back({m01, t.b1, m12});
+                next.push_back({m20, m12, t.b2}), next.push_back({m01, m12, m20});
+            }
+            cells = next;
+        }
+        auto point = [&](Vec3 b) { return c.p0 * b.x + c.p1 * b.y + c.p2 * b.z; };
+        const int N = 200000;
+        std::vector<double> expect, obs(cells.size(), 0.0);
+        for (const Tri &t : cells) expect.push_back(N * sphtri::solid_angle(c.o, point(t.b0), point(t.b1), point(t.b2)) / S);
+        for (int k = 0; k < N; ++k) {
+            float b[3];
+            ASSERT_TRUE(f.sample(c.p0, c.p1, c.p2, {rng.next_float(), rng.next_float()}, b)) << c.name;
+            // The cell: descend the subdivision (the barycentrics decide each level).
+            Vec3 bb(b[0], b[1], b[2]);
+            size_t idx = 0;
+            for (int level = 0; level < 3; ++level) {
+                int child;
+                if (bb.x > 0.5f) child = 0, bb = Vec3(2 * bb.x - 1, 2 * bb.y, 2 * bb.z);
+                else if (bb.y > 0.5f) child = 1, bb = Vec3(2 * bb.x, 2 * bb.y - 1, 2 * bb.z);
+                else if (bb.z > 0.5f) child = 2, bb = Vec3(2 * bb.x, 2 * bb.y, 2 * bb.z - 1);
+                else child = 3, bb = Vec3(1 - 2 * bb.z, 1 - 2 * bb.x, 1 - 2 * bb.y);
+                idx = idx * 4 + child;
+            }
+            obs[idx] += 1;
+        }
+        int dof;
+        const double chi2 = chi_square(obs, expect, dof);
+        EXPECT_LT(chi2, chi2_quantile_1e4(dof)) << c.name << " dof " << dof;
+        std::printf("%s: chi2 %.1f, %d dof\n", c.name, chi2, dof);
+    }
+}
+
 namespace {
 
 /// A planar quad emitter s + a ex + b ey (a, b in [0, 1]) as two triangles (s, s + ex + ey,
@@ -213,7 +308,9 @@ double expect_samples_follow_pdf(const Light &light, Vec3 s, Vec3 ex, Vec3 ey, V
         double a, b;
         coords(y, a, b);
         const uint32_t prim = b < a ? 0 : 1;
-        const float pdf = light.pdf(ctx, ls.wi, LightHit{y, n, prim});
+        float pdf = light.pdf(ctx, ls.wi, LightHit{y, n, prim});
+        // Within float round-off of the diagonal the point may belong to either triangle.
+        if (std::abs(b - a) < 1e-5 && std::abs(pdf - ls.pdf) > 1e-5f * ls.pdf) pdf = light.pdf(ctx, ls.wi, LightHit{y, n, 1 - prim});
         EXPECT_NEAR(pdf, ls.pdf, 1e-5f * ls.pdf) << name;
         obs[std::clamp(int(b * G), 0, G - 1) * G + std::clamp(int(a * G), 0, G - 1)] += 1;
     }
@@ -273,14 +370,17 @@ TEST(AreaLight, RectangleSamplesFollowPdfInEveryRegime) {
 }
 
 TEST(AreaLight, MeshSamplesFollowPdfInEveryRegime) {
-    // A sheared quad (not a rectangle: per-triangle choices) and the same in "area" mode.
+    // A sheared quad (not a rectangle: per-triangle choices between area sampling and float or
+    // double spherical triangles) and the same in "area" mode.
     const Vec3 s(-1, -0.5f, 2), ex(2, 0, 0), ey(0.6f, 1, 0);
     TestMeshShape shape(quad_mesh(s, ex, ey));
     for (const char *mode : {"solid_angle", "area"}) {
         auto l = make_light({{"type", "area"}, {"radiance", 1}, {"sampling", mode}});
         l->set_shape(&shape);
         uint64_t seed = 10;
-        for (Vec3 p : {Vec3(0.3f, 0.1f, 0), Vec3(3, 1, -20), Vec3(2.5f, 0, 1.2f), Vec3(0.1f, 0.05f, 1.9f)})
+        // Near (float spherical triangles), far (area), to the side, grazing (double: S < 1e-2
+        // sr), close above (large).
+        for (Vec3 p : {Vec3(0.3f, 0.1f, 0), Vec3(3, 1, -20), Vec3(2.5f, 0, 1.2f), Vec3(3.5f, 0.2f, 1.99f), Vec3(0.1f, 0.05f, 1.9f)})
             EXPECT_GT(expect_samples_follow_pdf(*l, s, ex, ey, p, mode, seed++), 0.99);
     }
 }

@@ -23,7 +23,9 @@
 //   * triangle meshes: a triangle is chosen with probability area_t / area (Distribution1D),
 //     then
 //       "solid_angle": a direction uniform in the triangle's spherical triangle (Arvo 1995,
-//                      see spherical_triangle.h); pdf = P(t) / Omega_t. Not when rho <= 1.5 for
+//                      see spherical_triangle.h: in float without libm calls from 1e-2 sr,
+//                      FloatSphericalTriangle, in double below); pdf = P(t) / Omega_t, Omega_t
+//                      from the same precision. Not when rho <= 1.5 for
 //                      this triangle (d_max: its farthest vertex; d_min bounded below by the
 //                      plane distance and the distance to its bounding sphere), nor when
 //                      Omega_t, seen from the reference point, is below 3e-4 sr (pbrt's
@@ -148,22 +150,23 @@ public:
             if (!(pmf > 0.f)) return false;
             Vec3 p0, p1, p2;
             triangle(t, p0, p1, p2);
-            double omega;
-            bool spherical = use_spherical(ctx.p, t, p0, p1, p2, omega);
-            double b[3];
-            if (spherical) {
-                if (!sphtri::sample(ctx.p, p0, p1, p2, Vec2(ux, u.y), b)) return false;
+            const TriPlan tp = tri_plan(ctx.p, t, p0, p1, p2);
+            float b[3];
+            if (tp.kind == TriPlan::Float) {
+                if (!tp.f.sample(p0, p1, p2, Vec2(ux, u.y), b)) return false;
+            } else if (tp.kind == TriPlan::Double) {
+                double bd[3];
+                if (!sphtri::sample(ctx.p, p0, p1, p2, Vec2(ux, u.y), bd)) return false;
+                b[0] = float(bd[0]), b[1] = float(bd[1]), b[2] = float(bd[2]);
             } else {
-                Vec2 bb = square_to_uniform_triangle(Vec2(ux, u.y));
-                b[0] = bb.x;
-                b[1] = bb.y;
-                b[2] = 1.0 - bb.x - bb.y;
+                const Vec2 bb = square_to_uniform_triangle(Vec2(ux, u.y));
+                b[0] = bb.x, b[1] = bb.y, b[2] = 1.f - bb.x - bb.y;
             }
-            p = p0 * float(b[0]) + p1 * float(b[1]) + p2 * float(b[2]);
-            n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
-            if (m_texture || m_shape->alpha_mask) uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
+            p = p0 * b[0] + p1 * b[1] + p2 * b[2];
+            n = emission_normal(t, b[0], b[1], b[2]);
+            if (m_texture || m_shape->alpha_mask) uv = m_shape->uv_at(uint32_t(t), b[1], b[2]);
             if (!towards(ctx, p, out, d2)) return false;
-            pdf = density(t, spherical, omega, n, out.wi, d2, pmf);
+            pdf = density(t, tp, n, out.wi, d2, pmf);
         } else {
             PositionSample ps = m_shape->sample_area(u.x, u);
             p = ps.p;
@@ -204,9 +207,7 @@ public:
             if (!(pmf > 0.f)) return 0.f;
             Vec3 p0, p1, p2;
             triangle(t, p0, p1, p2);
-            double omega;
-            bool spherical = use_spherical(ctx.p, t, p0, p1, p2, omega);
-            pdf = density(t, spherical, omega, m_tri_normal[t], wi, d2, pmf);
+            pdf = density(t, tri_plan(ctx.p, t, p0, p1, p2), m_tri_normal[t], wi, d2, pmf);
         } else {
             float cos_l = absdot(hit.n, wi);
             pdf = cos_l > 0.f ? d2 / (cos_l * m_area) : 0.f;
@@ -250,26 +251,40 @@ private:
         p1 = m_mesh->positions[idx[1]];
         p2 = m_mesh->positions[idx[2]];
     }
-    /// Whether triangle t = (p0, p1, p2) is solid-angle sampled from p; `omega`: its solid angle
-    /// then. Not where area sampling is as good (area_sampling_suffices, with a lower bound on
-    /// the distance to the triangle: the plane distance, or the distance to its bounding sphere
-    /// about the centroid), nor outside the solid angles that double precision resolves.
-    bool use_spherical(Vec3 p, size_t t, Vec3 p0, Vec3 p1, Vec3 p2, double &omega) const {
-        omega = 0;
-        if (!m_solid_angle) return false;
+    /// How triangle t = (p0, p1, p2) is sampled from p: by area where area sampling is as good
+    /// (area_sampling_suffices, with a lower bound on the distance to the triangle: the plane
+    /// distance, or the distance to its bounding sphere about the centroid) or outside the solid
+    /// angles that double precision resolves; otherwise its spherical triangle, in float from
+    /// MinFloatSolidAngle, in double below. A function of p alone: pdf() repeats sample()'s choice.
+    struct TriPlan {
+        enum Kind { Area, Float, Double } kind = Area;
+        sphtri::FloatSphericalTriangle f;
+        double omega = 0;  ///< Double: the solid angle
+    };
+    TriPlan tri_plan(Vec3 p, size_t t, Vec3 p0, Vec3 p1, Vec3 p2) const {
+        TriPlan plan;
+        if (!m_solid_angle) return plan;
         const Vec3 c = (p0 + p1 + p2) * (1.f / 3.f);
         const float radius = std::sqrt(std::max({length_squared(p0 - c), length_squared(p1 - c), length_squared(p2 - c)}));
         const float h = absdot(m_tri_normal[t], p - p0), dc = length(p - c) - radius;
         const float dmin = std::max(h, dc);
         const float dmax2 = std::max({length_squared(p0 - p), length_squared(p1 - p), length_squared(p2 - p)});
-        if (area_sampling_suffices(dmin * dmin, dmax2)) return false;
-        omega = sphtri::solid_angle(p, p0, p1, p2);
-        return omega >= MinSphericalSampleArea && omega <= MaxSphericalSampleArea;
+        if (area_sampling_suffices(dmin * dmin, dmax2)) return plan;
+        plan.f = sphtri::FloatSphericalTriangle(p, p0, p1, p2);
+        if (plan.f.valid && plan.f.S >= MinFloatSolidAngle && plan.f.S <= MaxSphericalSampleArea) {
+            plan.kind = TriPlan::Float;
+            return plan;
+        }
+        if (plan.f.valid && plan.f.S > MaxSphericalSampleArea && plan.f.S < 6.27f) return plan;  // nearly a hemisphere
+        plan.omega = sphtri::solid_angle(p, p0, p1, p2);
+        if (plan.omega >= MinSphericalSampleArea && plan.omega <= MaxSphericalSampleArea) plan.kind = TriPlan::Double;
+        return plan;
     }
     /// Solid-angle density of the light point at distance^2 d2 along wi on triangle t (chosen
-    /// with probability pmf; omega its solid angle when spherical).
-    float density(size_t t, bool spherical, double omega, Vec3 n, Vec3 wi, float d2, float pmf) const {
-        if (spherical) return float(double(pmf) / omega);
+    /// with probability pmf, sampled as `plan` says).
+    float density(size_t t, const TriPlan &plan, Vec3 n, Vec3 wi, float d2, float pmf) const {
+        if (plan.kind == TriPlan::Float) return pmf / plan.f.S;
+        if (plan.kind == TriPlan::Double) return float(double(pmf) / plan.omega);
         float cos_l = absdot(n, wi);
         float area_t = m_tri_area[t];
         if (!(cos_l > 0.f) || !(area_t > 0.f)) return 0.f;
