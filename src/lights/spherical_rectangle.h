@@ -110,8 +110,9 @@ struct RectFrame {
 struct FloatSphericalRectangle {
     Vec3 o, x, y, z;  ///< reference point and the frame (z towards o)
     float x0 = 0, x1 = 0, y0 = 0, y1 = 0, h = 0;
-    float b0 = 0, b1 = 0, S = 0;
-    float ek_c = 1, ek_s = 0;  ///< cos k, sin k
+    float S = 0;
+    float b0 = 0, b1 = 0, sh2_ = 0;  ///< y0, y1 and h^2 in the scaled frame (b0, b1 made in sample())
+    float ek_c = 1, ek_s = 0;        ///< e^{i k} up to a positive factor
     bool valid = false;
 
     FloatSphericalRectangle() = default;
@@ -128,7 +129,7 @@ struct FloatSphericalRectangle {
         // The angles do not depend on the scale: coordinates over the largest one keep the
         // products below (i.e. e^{i g} of magnitude at most 3, their product at most 81) far
         // from float overflow and underflow at any distance.
-        const float inv = 1.f / std::max({std::abs(x0), std::abs(x1), std::abs(y0), std::abs(y1), h});
+        const float inv = 1.f / std::max(std::max(std::max(std::abs(x0), std::abs(x1)), std::max(std::abs(y0), std::abs(y1))), h);
         const float sx0 = x0 * inv, sx1 = x1 * inv, sy0 = y0 * inv, sy1 = y1 * inv, sh = h * inv, sh2 = sh * sh;
         const float r00 = std::sqrt(sx0 * sx0 + sy0 * sy0 + sh2), r10 = std::sqrt(sx1 * sx1 + sy0 * sy0 + sh2);
         const float r01 = std::sqrt(sx0 * sx0 + sy1 * sy1 + sh2), r11 = std::sqrt(sx1 * sx1 + sy1 * sy1 + sh2);
@@ -140,21 +141,23 @@ struct FloatSphericalRectangle {
         const float pr = p01r * p23r - p01i * p23i, pi = p01r * p23i + p01i * p23r;
         S = atan2_approx(pi, pr);
         if (S < 0.f) S += 2.f * Pi;
-        const float inv23 = 1.f / std::sqrt(p23r * p23r + p23i * p23i);
-        ek_c = p23r * inv23;
-        ek_s = -p23i * inv23;
-        b0 = -sy0 / std::sqrt(sh2 + sy0 * sy0);
-        b1 = sy1 / std::sqrt(sh2 + sy1 * sy1);
-        valid = std::isfinite(S) && S > 0.f && std::isfinite(ek_c) && std::isfinite(ek_s);
+        // What only sample() needs (pdf() reads S alone) is finished there.
+        ek_c = p23r, ek_s = -p23i;
+        b0 = sy0, b1 = sy1, sh2_ = sh2;
+        valid = std::isfinite(S) && S > 0.f && std::isfinite(p23r) && std::isfinite(p23i);
     }
 
     /// The point of the rectangle in the direction sampled by u (density 1 / S in solid angle),
     /// and its coordinates (a, b) in [0, 1]^2 along the edges.
     bool sample(Vec2 u, Vec3 &p, Vec2 &ab) const {
         if (!valid) return false;
+        // e^{i k} = conj(e^{i g2} e^{i g3}) normalised; b0, b1 from the scaled y0, y1.
+        const float inv23 = 1.f / std::sqrt(ek_c * ek_c + ek_s * ek_s);
+        const float kc = ek_c * inv23, ks = ek_s * inv23;
+        const float b0 = -this->b0 / std::sqrt(sh2_ + this->b0 * this->b0), b1 = this->b1 / std::sqrt(sh2_ + this->b1 * this->b1);
         float su, cu_;
         sincos_0_2pi(u.x * S, su, cu_);
-        const float ca = cu_ * ek_c - su * ek_s, sa = su * ek_c + cu_ * ek_s;  // e^{i (u S + k)}
+        const float ca = cu_ * kc - su * ks, sa = su * kc + cu_ * ks;  // e^{i (u S + k)}
         if (!(std::abs(sa) > 0.f)) return false;
         const float fu = (ca * b0 - b1) / sa;
         float cu = std::copysign(1.f / std::sqrt(fu * fu + b0 * b0), fu);
