@@ -10,7 +10,7 @@
 //   area_quad/room                          perf_area.json's ceiling quad (1 x 1 at y = 2.99),
 //                                           points uniform in its 3 x 3 x 3 room (near and far)
 //   area_quad/far                           the same quad, points 20 to 40 units away
-//   area_mesh/room                          a 512-triangle uvsphere emitter (radius 0.3) in the room
+//   area_mesh/room                          a 16 x 16 uvsphere emitter (radius 0.3) in the room
 //   envmap                                  a 512 x 256 procedural sky with a sun (in memory)
 // Defaults (overridable on the command line): 5 repetitions, randomly interleaved, aggregates
 // only; a table of median ns per sample at the end. Not run by CTest (timings are no test).
