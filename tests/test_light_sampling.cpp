@@ -52,6 +52,41 @@ double chi2_quantile_1e4(int k) {
     return k * std::pow(1 - a + z * std::sqrt(a), 3);
 }
 
+/// A named configuration: reference point o and a rectangle (corner a, edges b, c) or a
+/// triangle (vertices a, b, c).
+struct Case {
+    const char *name;
+    Vec3 o, a, b, c;
+};
+
+/// Float against double solid angles: the worst absolute error below 0.1 sr and overall, the
+/// worst relative error from 1e-2 sr (where area.cpp uses float) and how many cases that saw.
+/// A tiny S may come out as 2 pi - epsilon (the product of the e^{i g} is e^{i S}, and S = 0 is
+/// 2 pi): area.cpp rejects every S above 6.22 sr, so those only have to be tiny or huge.
+struct SolidAngleErrors {
+    double small = 0, any = 0, rel = 0;
+    int used = 0;
+    void add(double d, float f) {
+        if (f > 6.22f) {
+            EXPECT_TRUE(d > 6.2 || d < 1e-5) << d << " " << f;
+            return;
+        }
+        const double err = std::abs(double(f) - d);
+        if (d < 0.1) small = std::max(small, err);
+        any = std::max(any, err);
+        if (d >= 1e-2) rel = std::max(rel, err / d), ++used;
+    }
+    /// At least min_used cases from 1e-2 sr; the bounds below 0.1 sr, overall, and 1e-4 relative.
+    void check(const char *what, int min_used, double small_bound, double any_bound) const {
+        EXPECT_GT(used, min_used) << what;
+        EXPECT_LT(small, small_bound) << what;
+        EXPECT_LT(any, any_bound) << what;
+        EXPECT_LT(rel, 1e-4) << what;
+        std::printf("float %s S: worst absolute error %.3g sr below 0.1 sr, %.3g overall; relative from 1e-2 sr %.3g\n",
+                    what, small, any, rel);
+    }
+};
+
 }  // namespace
 
 TEST(FloatTrig, WithinStatedError) {
@@ -84,8 +119,7 @@ TEST(FloatSphericalRectangle, SolidAngleMatchesDouble) {
     // within 1e-6 sr of the double one below 0.1 sr (1e-5 up to 6.22 sr), hence within 1e-4
     // relative above the 1e-2 sr where area.cpp switches from double to float.
     PCG32 rng(2);
-    double worst_abs = 0, worst_abs_any = 0, worst_rel_above = 0;
-    int above = 0;
+    SolidAngleErrors e;
     for (int i = 0; i < 100000; ++i) {
         const float scale = std::ldexp(1.f, int(rng.next_float() * 20) - 10);
         const Vec3 ex = Vec3(rng.next_float() + 0.01f, 0, 0) * scale, ey = Vec3(0, rng.next_float() + 0.01f, 0) * scale;
@@ -98,37 +132,16 @@ TEST(FloatSphericalRectangle, SolidAngleMatchesDouble) {
         if (!d.valid) continue;
         ASSERT_TRUE(f.valid || d.S < 1e-5) << d.S;
         if (!f.valid) continue;
-        const double err = std::abs(double(f.S) - d.S);
-        // A tiny S may come out as 2 pi - epsilon (the product of the e^{i g} is e^{i S} and
-        // S = 0 is 2 pi): area.cpp rejects every S above 6.22 sr, so those never count.
-        if (f.S > 6.22f) {
-            EXPECT_TRUE(d.S > 6.2 || d.S < 1e-5) << d.S << " " << f.S;
-            continue;
-        }
-        if (d.S < 0.1) worst_abs = std::max(worst_abs, err);
-        worst_abs_any = std::max(worst_abs_any, err);
-        if (d.S >= 1e-2) {
-            worst_rel_above = std::max(worst_rel_above, err / d.S);
-            ++above;
-        }
+        e.add(d.S, f.S);
     }
-    EXPECT_GT(above, 10000);
-    EXPECT_LT(worst_abs, 1e-6);      // S < 0.1 sr
-    EXPECT_LT(worst_abs_any, 1e-5);  // S up to 6.22 sr
-    EXPECT_LT(worst_rel_above, 1e-4);
-    std::printf("float S: worst absolute error %.3g sr below 0.1 sr, %.3g overall; worst relative above 1e-2 sr %.3g\n",
-                worst_abs, worst_abs_any, worst_rel_above);
+    e.check("rectangle", 10000, 1e-6, 1e-5);
 }
 
 TEST(FloatSphericalRectangle, SamplesAreUniformInSolidAngle) {
     // Chi-square of the sample counts over an 8 x 8 grid of the rectangle against the cells'
     // solid angles (double Van Oosterom-Strackee): off-axis, grazing and near, nearly a
     // hemisphere, small (just above the 1e-2 sr where area.cpp uses the float version).
-    struct Config {
-        const char *name;
-        Vec3 o, s, ex, ey;
-    };
-    const Config cases[] = {
+    const Case cases[] = {
         {"off-axis", {0.2f, -0.1f, 0}, {-0.5f, -0.5f, 0.7f}, {1, 0, 0}, {0, 1, 0}},
         {"grazing", {0, 0, 0}, {0.5f, -2, 0.05f}, {2, 0, 0}, {0, 3, 0}},
         {"huge", {0, 0, 0}, {-10, -10, 0.5f}, {20, 0, 0}, {0, 20, 0}},
@@ -136,27 +149,28 @@ TEST(FloatSphericalRectangle, SamplesAreUniformInSolidAngle) {
         {"below", {0.3f, 0.2f, 1}, {-1, -1, -0.2f}, {0, 2, 0}, {1.5f, 0, 0}},
     };
     PCG32 rng(7);
-    for (const Config &c : cases) {
-        const sphrect::FloatSphericalRectangle r(c.o, sphrect::RectFrame(c.s, c.ex, c.ey));
-        const double S = rect_solid_angle(c.o, c.s, c.ex, c.ey);
+    for (const Case &c : cases) {
+        const Vec3 s = c.a, ex = c.b, ey = c.c;  // corner and edges
+        const sphrect::FloatSphericalRectangle r(c.o, sphrect::RectFrame(s, ex, ey));
+        const double S = rect_solid_angle(c.o, s, ex, ey);
         ASSERT_TRUE(r.valid) << c.name;
         EXPECT_NEAR(r.S, S, 2e-6 + 1e-5 * S) << c.name;
         const int G = 8, N = 200000;
         std::vector<double> obs(G * G, 0.0), expect(G * G, 0.0);
-        const Vec3 ux = c.ex * (1.f / G), uy = c.ey * (1.f / G);
+        const Vec3 ux = ex * (1.f / G), uy = ey * (1.f / G);
         for (int j = 0; j < G; ++j)
             for (int i = 0; i < G; ++i)
-                expect[j * G + i] = N * rect_solid_angle(c.o, c.s + ux * float(i) + uy * float(j), ux, uy) / S;
-        const double lx2 = length_squared(c.ex), ly2 = length_squared(c.ey);
+                expect[j * G + i] = N * rect_solid_angle(c.o, s + ux * float(i) + uy * float(j), ux, uy) / S;
+        const double lx2 = length_squared(ex), ly2 = length_squared(ey);
         for (int n = 0; n < N; ++n) {
             Vec3 p;
             Vec2 ab;
             ASSERT_TRUE(r.sample({rng.next_float(), rng.next_float()}, p, ab)) << c.name;
-            const Vec3 d = p - c.s;
-            const double a = dot(d, c.ex) / lx2, b = dot(d, c.ey) / ly2;
+            const Vec3 d = p - s;
+            const double a = dot(d, ex) / lx2, b = dot(d, ey) / ly2;
             ASSERT_NEAR(a, ab.x, 1e-4) << c.name;
             ASSERT_NEAR(b, ab.y, 1e-4) << c.name;
-            ASSERT_NEAR(dot(d, cross(c.ex, c.ey)), 0.0, 1e-4 * std::sqrt(lx2 * ly2)) << c.name;  // on the rectangle
+            ASSERT_NEAR(dot(d, cross(ex, ey)), 0.0, 1e-4 * std::sqrt(lx2 * ly2)) << c.name;  // on the rectangle
             obs[std::min(G - 1, int(ab.y * G)) * G + std::min(G - 1, int(ab.x * G))] += 1;
         }
         int dof;
@@ -168,11 +182,9 @@ TEST(FloatSphericalRectangle, SamplesAreUniformInSolidAngle) {
 TEST(FloatSphericalTriangle, SolidAngleMatchesDouble) {
     // Random triangles (slivers included) from random points at distances over six decades:
     // within 1e-5 sr of the double Van Oosterom-Strackee solid angle below 0.1 sr, 3e-5 up to
-    // 6.22 sr, 1e-4 relative from the 1e-2 sr where area.cpp uses it. A tiny S may come out as 2 pi - epsilon, which
-    // area.cpp rejects with everything above 6.22 sr.
+    // 6.22 sr, 1e-4 relative from the 1e-2 sr where area.cpp uses it.
     PCG32 rng(12);
-    double worst_small = 0, worst_any = 0, worst_rel = 0;
-    int used = 0;
+    SolidAngleErrors e;
     for (int i = 0; i < 100000; ++i) {
         const float scale = std::ldexp(1.f, int(rng.next_float() * 20) - 10);
         auto rnd = [&] { return Vec3(rng.next_float() - 0.5f, rng.next_float() - 0.5f, rng.next_float() - 0.5f) * scale; };
@@ -182,40 +194,25 @@ TEST(FloatSphericalTriangle, SolidAngleMatchesDouble) {
         const double d = sphtri::solid_angle(o, p0, p1, p2);
         const sphtri::FloatSphericalTriangle f(o, p0, p1, p2);
         if (!f.valid || !(d > 0)) continue;
-        if (f.S > 6.22f) {
-            EXPECT_TRUE(d > 6.2 || d < 1e-5) << d << " " << f.S;
-            continue;
-        }
-        const double err = std::abs(double(f.S) - d);
-        if (d < 0.1) worst_small = std::max(worst_small, err);
-        worst_any = std::max(worst_any, err);
-        if (d >= 1e-2) worst_rel = std::max(worst_rel, err / d), ++used;
+        e.add(d, f.S);
     }
-    EXPECT_GT(used, 5000);
-    EXPECT_LT(worst_small, 1e-5);
-    EXPECT_LT(worst_any, 3e-5);
-    EXPECT_LT(worst_rel, 1e-4);
-    std::printf("float triangle S: worst absolute error %.3g sr below 0.1 sr, %.3g overall; relative from 1e-2 sr %.3g\n",
-                worst_small, worst_any, worst_rel);
+    e.check("triangle", 5000, 1e-5, 3e-5);
 }
 
 TEST(FloatSphericalTriangle, SamplesAreUniformInSolidAngle) {
     // Chi-square of the counts in the 4^3 = 64 sub-triangles of three midpoint subdivisions
     // against their solid angles (double), for a near, a grazing and a large triangle.
-    struct Config {
-        const char *name;
-        Vec3 o, p0, p1, p2;
-    };
-    const Config cases[] = {
+    const Case cases[] = {
         {"near", {0.1f, 0, 0}, {-1, -0.5f, 2}, {1, -0.3f, 2.2f}, {0.2f, 1, 1.8f}},
         {"grazing", {2.2f, 0.2f, 2.25f}, {-1, -0.5f, 2}, {1, -0.5f, 2}, {0, 1, 2}},
         {"large", {0, 0, 1.9f}, {-3, -3, 2}, {3, -3, 2}, {0, 4, 2}},
         {"small", {0, 0, 0}, {1, 1, 2.5f}, {1.8f, 1, 2.5f}, {1, 1.7f, 2.7f}},
     };
     PCG32 rng(13);
-    for (const Config &c : cases) {
-        const sphtri::FloatSphericalTriangle f(c.o, c.p0, c.p1, c.p2);
-        const double S = sphtri::solid_angle(c.o, c.p0, c.p1, c.p2);
+    for (const Case &c : cases) {
+        const Vec3 p0 = c.a, p1 = c.b, p2 = c.c;
+        const sphtri::FloatSphericalTriangle f(c.o, p0, p1, p2);
+        const double S = sphtri::solid_angle(c.o, p0, p1, p2);
         ASSERT_TRUE(f.valid) << c.name;
         ASSERT_GE(S, 1e-2) << c.name;
         EXPECT_NEAR(f.S, S, 1e-4 * S) << c.name;
@@ -233,13 +230,13 @@ TEST(FloatSphericalTriangle, SamplesAreUniformInSolidAngle) {
             }
             cells = next;
         }
-        auto point = [&](Vec3 b) { return c.p0 * b.x + c.p1 * b.y + c.p2 * b.z; };
+        auto point = [&](Vec3 b) { return p0 * b.x + p1 * b.y + p2 * b.z; };
         const int N = 200000;
         std::vector<double> expect, obs(cells.size(), 0.0);
         for (const Tri &t : cells) expect.push_back(N * sphtri::solid_angle(c.o, point(t.b0), point(t.b1), point(t.b2)) / S);
         for (int k = 0; k < N; ++k) {
             float b[3];
-            ASSERT_TRUE(f.sample(c.p0, c.p1, c.p2, {rng.next_float(), rng.next_float()}, b)) << c.name;
+            ASSERT_TRUE(f.sample(p0, p1, p2, {rng.next_float(), rng.next_float()}, b)) << c.name;
             // The cell: descend the subdivision (the barycentrics decide each level).
             Vec3 bb(b[0], b[1], b[2]);
             size_t idx = 0;
