@@ -13,23 +13,35 @@
 // vertex normal when the mesh has normals — the same rule the mesh shape uses for si.ng.
 // Power: pi · area · mean(L) (× 2 when two-sided; a texture's mean over its uv square).
 //
-// Sampling (pbrt-v4 Triangle::Sample / DiffuseAreaLight, Mitsuba 3 `area`):
+// Sampling (pbrt-v4 Triangle::Sample / DiffuseAreaLight, Mitsuba 3 `area`), solid-angle sampling
+// only where it pays: area sampling's solid-angle density d^2 / (A cos theta_l) = d^3 / (A h) on
+// a planar emitter varies over it by the factor rho = (d_max / d_min)^3, and where rho <= 1.5
+// (area_sampling_suffices below: at most 4.2% more variance for an integrand constant over the
+// emitter) the few flops of area sampling beat solid-angle sampling's tens of flops and square
+// roots; near or large emitters (rho > 1.5) are solid-angle sampled. The criterion depends on the
+// reference point alone, so pdf() reproduces sample()'s choice exactly.
 //   * triangle meshes: a triangle is chosen with probability area_t / area (Distribution1D),
 //     then
 //       "solid_angle": a direction uniform in the triangle's spherical triangle (Arvo 1995,
-//                      see spherical_triangle.h); pdf = P(t) / Omega_t. When Omega_t, seen
-//                      from the reference point, is below 3e-4 sr (float trigonometry no
-//                      longer resolves it; pbrt's MinSphericalSampleArea) or above 6.22 sr
-//                      (nearly a hemisphere: the sampling becomes unstable; pbrt's
-//                      MaxSphericalSampleArea), this triangle is area-sampled instead. The
-//                      decision is a deterministic function of (ctx.p, triangle), so pdf()
-//                      reproduces it exactly.
+//                      see spherical_triangle.h: in float without libm calls from 1e-2 sr,
+//                      FloatSphericalTriangle, in double below); pdf = P(t) / Omega_t, Omega_t
+//                      from the same precision. Not when rho <= 1.5 for
+//                      this triangle (d_max: its farthest vertex; d_min bounded below by the
+//                      plane distance and the distance to its bounding sphere), nor when
+//                      Omega_t, seen from the reference point, is below 3e-4 sr (pbrt's
+//                      MinSphericalSampleArea) or above 6.22 sr (nearly a hemisphere: the
+//                      sampling becomes unstable; pbrt's MaxSphericalSampleArea): then this
+//                      triangle is area-sampled.
 //       "area":        a point uniform in the triangle; pdf = P(t) / area_t · d^2 / |cos|
 //                      = d^2 / (area · |cos theta_light|).
 //   * a rectangle (two triangles over four corners with orthogonal edges: the `rectangle`
-//     shape, a quad from a file) in "solid_angle" mode: a direction uniform in the whole
-//     spherical rectangle (Urena et al. 2013, spherical_rectangle.h), pdf = 1 / Omega, within
-//     the same 3e-4 .. 6.22 sr bounds (outside them: the triangle rules above).
+//     shape, a quad from a file) in "solid_angle" mode: nothing from behind a one-sided
+//     rectangle (pdf 0); a point uniform on the rectangle (u as its edge coordinates) where
+//     rho <= 1.5 (exact d_min, d_max in its frame), pdf = d^2 / (area |cos|); otherwise a
+//     direction uniform in the whole spherical rectangle (Urena et al. 2013,
+//     spherical_rectangle.h), pdf = 1 / Omega: in float without libm calls from 1e-2 sr
+//     (FloatSphericalRectangle), in double from 3e-4 to 1e-2 sr, and beyond 3e-4 .. 6.22 sr by
+//     the triangle rules above.
 //   * other shapes (analytic sphere): shape->sample_area() (uniform by area, pdf 1/area)
 //     converted to solid angle, whatever `sampling` says.
 // pdf(ctx, wi, hit) is the density of the point hit.p on triangle hit.prim in the measure
@@ -63,6 +75,21 @@ namespace {
 
 constexpr double MinSphericalSampleArea = 3e-4;  // sr
 constexpr double MaxSphericalSampleArea = 6.22;  // sr
+/// Below this solid angle the float spherical rectangle's S (absolute error a few float
+/// epsilons, FloatSphericalRectangle.*) is off by more than 1e-4 relative: double precision.
+constexpr float MinFloatSolidAngle = 1e-2f;  // sr
+
+/// Solid-angle sampling only where it pays. Area sampling has the solid-angle density
+/// d^2 / (A cos theta_l) = d^3 / (A h) on a planar emitter (h: the distance to its plane), so
+/// over an emitter seen at distances [d_min, d_max] it deviates from the uniform density of
+/// solid-angle sampling by at most the factor rho = (d_max / d_min)^3. For an integrand that is
+/// constant over the emitter that adds at most (rho - 1)^2 / (4 rho) relative variance (the
+/// chi-square divergence of two densities whose ratio stays in a range of width rho), for any
+/// integrand at most a factor rho on the second moment. RhoMax = 1.5 keeps the first under
+/// 4.2%: there area sampling (a few flops) is used instead of solid-angle sampling (tens of
+/// flops and several square roots). Compared as d_max^2 <= RhoMax^(2/3) d_min^2.
+constexpr float RhoMax23 = 1.3103707f;  // 1.5^(2/3)
+inline bool area_sampling_suffices(float dmin2, float dmax2) { return dmax2 <= RhoMax23 * dmin2; }
 
 class AreaLight final : public Light {
 public:
@@ -92,39 +119,54 @@ public:
         float d2;
         Vec3 p, n;
         Vec2 uv;  // read only by textures and alpha masks
-        float pdf;
-        sphrect::SphericalRectangle sr = spherical_rectangle(ctx.p);
-        if (sr.valid) {
-            // A rectangle seen under a usable solid angle: one direction uniform in all of it.
-            if (!sr.sample(u, p)) return false;
-            double b[3] = {1, 0, 0};
-            const size_t t = locate(p, b);
-            n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
-            if (m_texture || m_shape->alpha_mask) uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
+        float pdf = 0.f;
+        const RectPlan plan = rect_plan(ctx.p);
+        if (plan.kind == RectPlan::Nothing) return false;
+        if (plan.kind == RectPlan::Float || plan.kind == RectPlan::Double || plan.kind == RectPlan::Area) {
+            // A rectangle: one direction uniform in its solid angle, or one point uniform on it.
+            if (plan.kind == RectPlan::Float) {
+                Vec2 ab;
+                if (!plan.f.sample(u, p, ab)) return false;
+                pdf = 1.f / plan.f.S;
+            } else if (plan.kind == RectPlan::Double) {
+                if (!plan.d.sample(u, p)) return false;
+                pdf = float(1.0 / plan.d.S);
+            } else {
+                p = m_rect.s + m_rect.x * (u.x * m_rect.lx) + m_rect.y * (u.y * m_rect.ly);
+            }
+            size_t t = 0;
+            n = m_tri_normal[0];
+            if (m_texture || m_shape->alpha_mask || !m_mesh->normals.empty()) {
+                double b[3] = {1, 0, 0};
+                t = locate(p, b);
+                n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
+                uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
+            }
             if (!towards(ctx, p, out, d2)) return false;
-            pdf = float(1.0 / sr.S);
+            if (plan.kind == RectPlan::Area) pdf = rect_area_density(out.wi, d2);
         } else if (m_mesh) {
             float pmf, ux;
             size_t t = m_tri_distr.sample_discrete(u.x, &pmf, &ux);
             if (!(pmf > 0.f)) return false;
             Vec3 p0, p1, p2;
             triangle(t, p0, p1, p2);
-            double omega;
-            bool spherical = use_spherical(ctx.p, p0, p1, p2, omega);
-            double b[3];
-            if (spherical) {
-                if (!sphtri::sample(ctx.p, p0, p1, p2, Vec2(ux, u.y), b)) return false;
+            const TriPlan tp = tri_plan(ctx.p, t, p0, p1, p2);
+            float b[3];
+            if (tp.kind == TriPlan::Float) {
+                if (!tp.f.sample(p0, p1, p2, Vec2(ux, u.y), b)) return false;
+            } else if (tp.kind == TriPlan::Double) {
+                double bd[3];
+                if (!sphtri::sample(ctx.p, p0, p1, p2, Vec2(ux, u.y), bd)) return false;
+                b[0] = float(bd[0]), b[1] = float(bd[1]), b[2] = float(bd[2]);
             } else {
-                Vec2 bb = square_to_uniform_triangle(Vec2(ux, u.y));
-                b[0] = bb.x;
-                b[1] = bb.y;
-                b[2] = 1.0 - bb.x - bb.y;
+                const Vec2 bb = square_to_uniform_triangle(Vec2(ux, u.y));
+                b[0] = bb.x, b[1] = bb.y, b[2] = 1.f - bb.x - bb.y;
             }
-            p = p0 * float(b[0]) + p1 * float(b[1]) + p2 * float(b[2]);
-            n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
-            if (m_texture || m_shape->alpha_mask) uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
+            p = p0 * b[0] + p1 * b[1] + p2 * b[2];
+            n = emission_normal(t, b[0], b[1], b[2]);
+            if (m_texture || m_shape->alpha_mask) uv = m_shape->uv_at(uint32_t(t), b[1], b[2]);
             if (!towards(ctx, p, out, d2)) return false;
-            pdf = density(t, spherical, omega, n, out.wi, d2, pmf);
+            pdf = density(t, tp, n, out.wi, d2, pmf);
         } else {
             PositionSample ps = m_shape->sample_area(u.x, u);
             p = ps.p;
@@ -151,17 +193,21 @@ public:
         if (!(d2 > 0.f)) return 0.f;
         float pdf;
         if (m_mesh && hit.prim >= m_mesh->triangle_count()) return 0.f;
-        if (sphrect::SphericalRectangle sr = spherical_rectangle(ctx.p); sr.valid) {
-            pdf = float(1.0 / sr.S);
+        const RectPlan plan = rect_plan(ctx.p);
+        if (plan.kind == RectPlan::Nothing) return 0.f;
+        if (plan.kind == RectPlan::Float) {
+            pdf = 1.f / plan.f.S;
+        } else if (plan.kind == RectPlan::Double) {
+            pdf = float(1.0 / plan.d.S);
+        } else if (plan.kind == RectPlan::Area) {
+            pdf = rect_area_density(wi, d2);
         } else if (m_mesh) {
             size_t t = hit.prim;
             float pmf = m_tri_distr.pmf(t);
             if (!(pmf > 0.f)) return 0.f;
             Vec3 p0, p1, p2;
             triangle(t, p0, p1, p2);
-            double omega;
-            bool spherical = use_spherical(ctx.p, p0, p1, p2, omega);
-            pdf = density(t, spherical, omega, m_tri_normal[t], wi, d2, pmf);
+            pdf = density(t, tri_plan(ctx.p, t, p0, p1, p2), m_tri_normal[t], wi, d2, pmf);
         } else {
             float cos_l = absdot(hit.n, wi);
             pdf = cos_l > 0.f ? d2 / (cos_l * m_area) : 0.f;
@@ -205,17 +251,40 @@ private:
         p1 = m_mesh->positions[idx[1]];
         p2 = m_mesh->positions[idx[2]];
     }
-    /// Whether triangle (p0, p1, p2) is solid-angle sampled from p; `omega`: its solid angle then.
-    bool use_spherical(Vec3 p, Vec3 p0, Vec3 p1, Vec3 p2, double &omega) const {
-        omega = 0;
-        if (!m_solid_angle) return false;
-        omega = sphtri::solid_angle(p, p0, p1, p2);
-        return omega >= MinSphericalSampleArea && omega <= MaxSphericalSampleArea;
+    /// How triangle t = (p0, p1, p2) is sampled from p: by area where area sampling is as good
+    /// (area_sampling_suffices, with a lower bound on the distance to the triangle: the plane
+    /// distance, or the distance to its bounding sphere about the centroid) or outside the solid
+    /// angles that double precision resolves; otherwise its spherical triangle, in float from
+    /// MinFloatSolidAngle, in double below. A function of p alone: pdf() repeats sample()'s choice.
+    struct TriPlan {
+        enum Kind { Area, Float, Double } kind = Area;
+        sphtri::FloatSphericalTriangle f;
+        double omega = 0;  ///< Double: the solid angle
+    };
+    TriPlan tri_plan(Vec3 p, size_t t, Vec3 p0, Vec3 p1, Vec3 p2) const {
+        TriPlan plan;
+        if (!m_solid_angle) return plan;
+        const Vec3 c = (p0 + p1 + p2) * (1.f / 3.f);
+        const float radius = std::sqrt(std::max({length_squared(p0 - c), length_squared(p1 - c), length_squared(p2 - c)}));
+        const float h = absdot(m_tri_normal[t], p - p0), dc = length(p - c) - radius;
+        const float dmin = std::max(h, dc);
+        const float dmax2 = std::max({length_squared(p0 - p), length_squared(p1 - p), length_squared(p2 - p)});
+        if (area_sampling_suffices(dmin * dmin, dmax2)) return plan;
+        plan.f = sphtri::FloatSphericalTriangle(p, p0, p1, p2);
+        if (plan.f.valid && plan.f.S >= MinFloatSolidAngle && plan.f.S <= MaxSphericalSampleArea) {
+            plan.kind = TriPlan::Float;
+            return plan;
+        }
+        if (plan.f.valid && plan.f.S > MaxSphericalSampleArea && plan.f.S < 6.27f) return plan;  // nearly a hemisphere
+        plan.omega = sphtri::solid_angle(p, p0, p1, p2);
+        if (plan.omega >= MinSphericalSampleArea && plan.omega <= MaxSphericalSampleArea) plan.kind = TriPlan::Double;
+        return plan;
     }
     /// Solid-angle density of the light point at distance^2 d2 along wi on triangle t (chosen
-    /// with probability pmf; omega its solid angle when spherical).
-    float density(size_t t, bool spherical, double omega, Vec3 n, Vec3 wi, float d2, float pmf) const {
-        if (spherical) return float(double(pmf) / omega);
+    /// with probability pmf, sampled as `plan` says).
+    float density(size_t t, const TriPlan &plan, Vec3 n, Vec3 wi, float d2, float pmf) const {
+        if (plan.kind == TriPlan::Float) return pmf / plan.f.S;
+        if (plan.kind == TriPlan::Double) return float(double(pmf) / plan.omega);
         float cos_l = absdot(n, wi);
         float area_t = m_tri_area[t];
         if (!(cos_l > 0.f) || !(area_t > 0.f)) return 0.f;
@@ -261,15 +330,50 @@ private:
         detect_rectangle();
     }
 
-    /// The emitter as a rectangle seen from p, when it is one (two triangles with orthogonal
-    /// edges) and solid-angle sampling applies there (the same bounds as for triangles); invalid
-    /// otherwise: sample() and pdf() then use the triangles. A function of p alone, so pdf()
-    /// reproduces sample()'s choice.
-    sphrect::SphericalRectangle spherical_rectangle(Vec3 p) const {
-        if (!m_is_rect || !m_solid_angle) return sphrect::SphericalRectangle(p, Vec3(), Vec3(), Vec3());
-        sphrect::SphericalRectangle sr(p, m_rect_s, m_rect_ex, m_rect_ey);
-        if (sr.valid && !(sr.S >= MinSphericalSampleArea && sr.S <= MaxSphericalSampleArea)) sr.valid = false;
-        return sr;
+    /// How a rectangular emitter is sampled from p (a function of p alone, so pdf() repeats
+    /// sample()'s choice): nothing from behind a one-sided emitter; by area (the triangles) where
+    /// area sampling is as good (area_sampling_suffices: the distances to the nearest and the
+    /// farthest point of the rectangle in its frame), a point uniform on the rectangle (u as its
+    /// two edge coordinates: no triangle choice); otherwise the whole spherical rectangle in
+    /// float, in double below MinFloatSolidAngle, and per triangle outside the bounds
+    /// [MinSphericalSampleArea, MaxSphericalSampleArea]. Emitters that are no rectangle (or in
+    /// "area" mode) go to the triangles, which decide per triangle.
+    struct RectPlan {
+        enum Kind { Nothing, Triangles, Area, Float, Double } kind = Triangles;
+        sphrect::FloatSphericalRectangle f;
+        sphrect::SphericalRectangle d;
+    };
+    RectPlan rect_plan(Vec3 p) const {
+        RectPlan plan;
+        if (!m_is_rect || !m_solid_angle) return plan;
+        const Vec3 q = p - m_rect.s;
+        const float zq = dot(q, m_rect.z);
+        if (m_rect_front != 0 && !(zq * float(m_rect_front) > 0.f)) {
+            plan.kind = RectPlan::Nothing;  // behind a one-sided emitter, or in its plane
+            return plan;
+        }
+        // Nearest and farthest point of [0, lx] x [0, ly] from p's projection (a, b).
+        const float a = dot(q, m_rect.x), b = dot(q, m_rect.y);
+        const float na = a - std::clamp(a, 0.f, m_rect.lx), nb = b - std::clamp(b, 0.f, m_rect.ly);
+        const float fa = std::max(std::abs(a), std::abs(a - m_rect.lx)), fb = std::max(std::abs(b), std::abs(b - m_rect.ly));
+        if (area_sampling_suffices(na * na + nb * nb + zq * zq, fa * fa + fb * fb + zq * zq)) {
+            plan.kind = RectPlan::Area;
+            return plan;
+        }
+        plan.f = sphrect::FloatSphericalRectangle(p, m_rect);
+        if (plan.f.valid && plan.f.S >= MinFloatSolidAngle && plan.f.S <= MaxSphericalSampleArea) {
+            plan.kind = RectPlan::Float;
+        } else if (plan.f.valid && plan.f.S < MinFloatSolidAngle) {
+            plan.d = sphrect::SphericalRectangle(p, m_rect_s, m_rect_ex, m_rect_ey);
+            if (plan.d.valid && plan.d.S >= MinSphericalSampleArea && plan.d.S <= MaxSphericalSampleArea)
+                plan.kind = RectPlan::Double;
+        }
+        return plan;
+    }
+    /// Solid-angle density of a point uniform on the rectangle, at distance^2 d2 along wi.
+    float rect_area_density(Vec3 wi, float d2) const {
+        const float cos_l = absdot(m_rect.z, wi);
+        return cos_l > 0.f ? d2 / (cos_l * m_area) : 0.f;
     }
     /// The triangle of a rectangular emitter that holds p, with p's barycentrics in it.
     size_t locate(Vec3 p, double b[3]) const {
@@ -289,6 +393,20 @@ private:
             }
         }
         return best;
+    }
+    /// The side of the rectangle's frame z that emits (+1 or -1) when the emission normal is the
+    /// same at every vertex of both triangles (vertex normals may flip it per point); 0 otherwise.
+    int emitting_side() const {
+        int side = 0;
+        for (size_t t = 0; t < 2; ++t)
+            for (int k = 0; k < 3; ++k) {
+                const float b[3] = {k == 0 ? 1.f : 0.f, k == 1 ? 1.f : 0.f, k == 2 ? 1.f : 0.f};
+                const float s = dot(emission_normal(t, b[0], b[1], b[2]), m_rect.z);
+                const int this_side = s > 0.f ? 1 : (s < 0.f ? -1 : 0);
+                if (this_side == 0 || (side != 0 && this_side != side)) return 0;
+                side = this_side;
+            }
+        return side;
     }
     /// Whether the mesh is a rectangle (the `rectangle` shape, a quad of a file): two triangles
     /// over four corners s, s + ex, s + ex + ey, s + ey with ex orthogonal to ey.
@@ -311,6 +429,8 @@ private:
                     const float tol = 1e-5f * (length_squared(ex) + length_squared(ey));
                     if (std::abs(dot(ex, ey)) > tol || length_squared(corners[a] + ex + ey - corners[d]) > tol) continue;
                     m_rect_s = corners[a], m_rect_ex = ex, m_rect_ey = ey, m_is_rect = true;
+                    m_rect = sphrect::RectFrame(m_rect_s, m_rect_ex, m_rect_ey);
+                    m_rect_front = m_two_sided ? 0 : emitting_side();
                     return;
                 }
     }
@@ -326,6 +446,8 @@ private:
     float m_area = 0.f;
     bool m_is_rect = false;          ///< a rectangle: solid-angle sampled as a whole (sphrect)
     Vec3 m_rect_s, m_rect_ex, m_rect_ey;
+    sphrect::RectFrame m_rect;       ///< the rectangle's frame (float sampling)
+    int m_rect_front = 0;            ///< +1 / -1: only the side of +z / -z emits; 0: both or unknown
 };
 
 MESO_REGISTER_LIGHT("area", "diffuse area emitter on a shape (radiance: constant or texture, two_sided, sampling)",

@@ -24,6 +24,10 @@
 //
 // Power: pi r^2 ∫ L dω (flux through a disk of the scene's bounding radius r, summed
 // over all directions; the integral uses the blurred cell averages, RGB-averaged).
+// Sampling tables in float with a guide per 8 cells (sampling/distribution.h: about 8 bytes
+// per texel, an expected O(1) lookup within a cache line or two; the pdf of a direction is
+// one read of two adjacent CDF entries per dimension). Direction <-> uv in float without libm
+// calls (float_trig.h).
 // Memory: the RGB float texels plus the distribution tables, reported by to_string()
 // (shown by `meso render --plan`).
 //
@@ -37,6 +41,7 @@
 #include "core/properties.h"
 #include "core/registry.h"
 #include "core/transform_parse.h"
+#include "lights/float_trig.h"
 
 namespace meso {
 
@@ -101,18 +106,23 @@ EnvMapLight::EnvMapLight(const Image &img, float scale, const Transform &to_worl
 
 Spectrum EnvMapLight::texel(int x, int y) const { return m_texels[size_t(y) * m_w + x]; }
 
+// The two maps in float without libm calls (lights/float_trig.h: within 4e-7 rad, i.e. 6e-8 in
+// u and 1.3e-7 in v); theta as atan2(sin, cos), which, unlike acos(d.y), keeps its accuracy
+// at the poles.
 Vec2 EnvMapLight::direction_to_uv(Vec3 d) {
-    float u = std::atan2(d.x, -d.z) * Inv2Pi;
+    float u = atan2_approx(d.x, -d.z) * Inv2Pi;
     if (u < 0.f) u += 1.f;
     if (!(u < 1.f)) u = 0.f;  // u = 1 (rounding) is the same meridian as 0
-    float v = safe_acos(d.y) * InvPi;
+    float v = clamp(atan2_approx(std::sqrt(d.x * d.x + d.z * d.z), d.y) * InvPi, 0.f, 1.f);
     return {u, v};
 }
 
 Vec3 EnvMapLight::uv_to_direction(Vec2 uv) {
-    float phi = 2.f * Pi * uv.x, theta = Pi * uv.y;
-    float st = std::sin(theta);
-    return {std::sin(phi) * st, std::cos(theta), -std::cos(phi) * st};
+    float sp, cp, st, ct;
+    sincos_0_2pi(2.f * Pi * uv.x, sp, cp);
+    sincos_0_2pi(Pi * uv.y, st, ct);
+    st = std::max(st, 0.f);
+    return {sp * st, ct, -cp * st};
 }
 
 Spectrum EnvMapLight::radiance(Vec3 d_world) const {
@@ -160,9 +170,8 @@ bool EnvMapLight::sample(const LightSampleContext &, Vec2 u, LightSample &out) c
     // Jacobian 2 pi^2 sin theta of the lat-long map): what pdf(wi) returns, without mapping wi
     // back to uv (atan2, acos and a second table lookup). The two agree except within float
     // round-off of a cell boundary.
-    const float phi = 2.f * Pi * uv.x, theta = Pi * uv.y;
-    const float st = std::sin(theta);
-    const Vec3 d(std::sin(phi) * st, std::cos(theta), -std::cos(phi) * st);
+    const Vec3 d = uv_to_direction(uv);
+    const float st = std::sqrt(d.x * d.x + d.z * d.z);
     Vec3 wi = m_identity ? d : normalize(m_to_world.apply_vector(d));
     float pdf = st > 0.f ? pdf_uv / (2.f * Pi * Pi * st) : 0.f;
     if (!(pdf > 0.f) || !std::isfinite(pdf)) return false;

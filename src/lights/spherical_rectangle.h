@@ -13,6 +13,7 @@
 #pragma once
 #include <algorithm>
 #include <cmath>
+#include "lights/float_trig.h"
 #include "lights/spherical_triangle.h"  // DVec3
 
 namespace meso {
@@ -27,6 +28,7 @@ struct SphericalRectangle {
     double b0 = 0, b1 = 0, k = 0, S = 0;  ///< the paper's b0, b1, k and the solid angle
     bool valid = false;
 
+    SphericalRectangle() = default;
     /// Rectangle s + a ex + b ey (a, b in [0, 1]; ex and ey orthogonal) seen from o.
     SphericalRectangle(Vec3 o_, Vec3 s, Vec3 ex, Vec3 ey) : o(o_) {
         const DVec3 dex(ex), dey(ey);
@@ -78,6 +80,98 @@ struct SphericalRectangle {
         const DVec3 q = o + x * xu + y * yv + z * z0;
         p = Vec3(float(q.x), float(q.y), float(q.z));
         return std::isfinite(q.x) && std::isfinite(q.y) && std::isfinite(q.z);
+    }
+};
+
+/// The rectangle's own frame, computed once per light: corner s, unit edge directions x, y,
+/// z = x cross y, edge lengths lx, ly.
+struct RectFrame {
+    Vec3 s, x, y, z;
+    float lx = 0.f, ly = 0.f;
+    RectFrame() = default;
+    RectFrame(Vec3 s_, Vec3 ex, Vec3 ey) : s(s_), lx(length(ex)), ly(length(ey)) {
+        x = lx > 0.f ? ex / lx : Vec3(0, 0, 0);
+        y = ly > 0.f ? ey / ly : Vec3(0, 0, 0);
+        z = cross(x, y);
+    }
+};
+
+/// The same sampler in float, with no libm call: Urena et al.'s interior angles g0..g3 enter
+/// only through e^{i g} (the sampler needs sin and cos of u S + k, never an angle itself), and
+/// in the rectangle's frame (o at the origin, the plane at height -h) each is a closed form,
+///     e^{i g0} ~ (x1 y0, h r10),  e^{i g1} ~ (-x1 y1, h r11),
+///     e^{i g2} ~ (x0 y1, h r01),  e^{i g3} ~ (-x0 y0, h r00),
+/// r_ab the distance to corner (x_a, y_b): the dot and the cross product of consecutive edge-
+/// plane normals (0, -h, -y0), (h, 0, x1), (0, h, y1), (-h, 0, -x0) (up to positive factors).
+/// Then e^{i S} = prod e^{i g} (S = sum g - 2 pi in (0, 2 pi): one atan2_approx), e^{i k} =
+/// conj(e^{i g2} e^{i g3}), and e^{i (u S + k)} = e^{i u S} e^{i k} (one sincos_0_2pi).
+/// The absolute error of S is a few float epsilons (tests: FloatSphericalRectangle.*), so
+/// callers use it only above MinFloatSolidAngle and take the double version below.
+struct FloatSphericalRectangle {
+    Vec3 o, x, y, z;  ///< reference point and the frame (z towards o)
+    float x0 = 0, x1 = 0, y0 = 0, y1 = 0, h = 0;
+    float S = 0;
+    float b0 = 0, b1 = 0, sh2_ = 0;  ///< y0, y1 and h^2 in the scaled frame (b0, b1 made in sample())
+    float ek_c = 1, ek_s = 0;        ///< e^{i k} up to a positive factor
+    bool valid = false;
+
+    FloatSphericalRectangle() = default;
+    FloatSphericalRectangle(Vec3 o_, const RectFrame &f) : o(o_), x(f.x), y(f.y), z(f.z) {
+        const Vec3 d = f.s - o;
+        x0 = dot(d, x);
+        y0 = dot(d, y);
+        float z0 = dot(d, z);
+        if (z0 > 0.f) z = -z;  // the rectangle on the other side: flip z
+        h = std::abs(z0);
+        if (!(h > 0.f) || !(f.lx > 0.f) || !(f.ly > 0.f)) return;
+        x1 = x0 + f.lx;
+        y1 = y0 + f.ly;
+        // The angles do not depend on the scale: coordinates over the largest one keep the
+        // products below (i.e. e^{i g} of magnitude at most 3, their product at most 81) far
+        // from float overflow and underflow at any distance.
+        const float inv = 1.f / std::max(std::max(std::max(std::abs(x0), std::abs(x1)), std::max(std::abs(y0), std::abs(y1))), h);
+        const float sx0 = x0 * inv, sx1 = x1 * inv, sy0 = y0 * inv, sy1 = y1 * inv, sh = h * inv, sh2 = sh * sh;
+        const float r00 = std::sqrt(sx0 * sx0 + sy0 * sy0 + sh2), r10 = std::sqrt(sx1 * sx1 + sy0 * sy0 + sh2);
+        const float r01 = std::sqrt(sx0 * sx0 + sy1 * sy1 + sh2), r11 = std::sqrt(sx1 * sx1 + sy1 * sy1 + sh2);
+        // Products of the unnormalised e^{i g}: (a, b) (c, d) = (ac - bd, ad + bc).
+        const float c0r = sx1 * sy0, c0i = sh * r10, c1r = -sx1 * sy1, c1i = sh * r11;
+        const float c2r = sx0 * sy1, c2i = sh * r01, c3r = -sx0 * sy0, c3i = sh * r00;
+        const float p01r = c0r * c1r - c0i * c1i, p01i = c0r * c1i + c0i * c1r;
+        const float p23r = c2r * c3r - c2i * c3i, p23i = c2r * c3i + c2i * c3r;
+        const float pr = p01r * p23r - p01i * p23i, pi = p01r * p23i + p01i * p23r;
+        S = atan2_approx(pi, pr);
+        if (S < 0.f) S += 2.f * Pi;
+        // What only sample() needs (pdf() reads S alone) is finished there.
+        ek_c = p23r, ek_s = -p23i;
+        b0 = sy0, b1 = sy1, sh2_ = sh2;
+        valid = std::isfinite(S) && S > 0.f && std::isfinite(p23r) && std::isfinite(p23i);
+    }
+
+    /// The point of the rectangle in the direction sampled by u (density 1 / S in solid angle),
+    /// and its coordinates (a, b) in [0, 1]^2 along the edges.
+    bool sample(Vec2 u, Vec3 &p, Vec2 &ab) const {
+        if (!valid) return false;
+        // e^{i k} = conj(e^{i g2} e^{i g3}) normalised; b0, b1 from the scaled y0, y1.
+        const float inv23 = 1.f / std::sqrt(ek_c * ek_c + ek_s * ek_s);
+        const float kc = ek_c * inv23, ks = ek_s * inv23;
+        const float b0 = -this->b0 / std::sqrt(sh2_ + this->b0 * this->b0), b1 = this->b1 / std::sqrt(sh2_ + this->b1 * this->b1);
+        float su, cu_;
+        sincos_0_2pi(u.x * S, su, cu_);
+        const float ca = cu_ * kc - su * ks, sa = su * kc + cu_ * ks;  // e^{i (u S + k)}
+        if (!(std::abs(sa) > 0.f)) return false;
+        const float fu = (ca * b0 - b1) / sa;
+        float cu = std::copysign(1.f / std::sqrt(fu * fu + b0 * b0), fu);
+        cu = std::clamp(cu, -OneMinusEpsilon, OneMinusEpsilon);
+        float xu = cu * h / std::sqrt(std::max(0.f, 1.f - cu * cu));  // -cu z0 / sqrt(1 - cu^2)
+        xu = std::clamp(std::isfinite(xu) ? xu : x0, x0, x1);
+        const float dd2 = xu * xu + h * h;
+        const float h0 = y0 / std::sqrt(dd2 + y0 * y0), h1 = y1 / std::sqrt(dd2 + y1 * y1);
+        const float hv = h0 + u.y * (h1 - h0), hv2 = hv * hv;
+        float yv = hv2 < OneMinusEpsilon ? hv * std::sqrt(dd2 / (1.f - hv2)) : (hv > 0.f ? y1 : y0);
+        yv = std::clamp(yv, y0, y1);
+        p = o + x * xu + y * yv - z * h;
+        ab = Vec2(std::clamp((xu - x0) / (x1 - x0), 0.f, 1.f), std::clamp((yv - y0) / (y1 - y0), 0.f, 1.f));
+        return std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
     }
 };
 

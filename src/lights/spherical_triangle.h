@@ -7,11 +7,14 @@
 // pdf is the Van Oosterom–Strackee formula (1983),
 //     tan(Omega / 2) = |a · (b x c)| / (1 + a·b + b·c + c·a)   (a, b, c unit),
 // which, unlike the angle excess alpha + beta + gamma - pi, stays accurate for tiny
-// triangles. Everything is evaluated in double precision: a float angle excess loses all
-// digits below ~1e-4 sr, which is exactly where callers switch to area sampling.
+// triangles. solid_angle() and sample() are evaluated in double precision: a float angle excess
+// loses all digits below ~1e-4 sr, which is exactly where callers switch to area sampling.
+// FloatSphericalTriangle (below) is the float form for triangles from 1e-2 sr.
 #pragma once
 #include <cmath>
+#include <algorithm>
 #include "core/vec.h"
+#include "lights/float_trig.h"
 
 namespace meso {
 namespace sphtri {
@@ -108,6 +111,93 @@ inline bool sample(Vec3 p, Vec3 p0, Vec3 p1, Vec3 p2, Vec2 u, double b[3]) {
     b[2] = b2;
     return true;
 }
+
+
+/// The same sampler in float, with no libm call. The interior angles enter only through
+/// e^{i alpha} etc.: with unit a, b, c and the edge-plane normals n_ab = a x b, ..., the angle
+/// at a is that between n_ab and -n_ca, and |n_ab x n_ca| = |det(a, b, c)| = D, so
+///     e^{i alpha} ~ (-n_ab . n_ca, D),  e^{i beta} ~ (-n_bc . n_ab, D),  e^{i gamma} ~ (-n_ca . n_bc, D)
+/// (up to positive factors), e^{i A} = -e^{i (alpha + beta + gamma)} gives the area A with one
+/// atan2_approx, and Arvo's e^{i (pi + u A)} = -e^{i u A} one sincos_0_2pi. Its A is within a few
+/// float epsilons (absolute) of the double one (tests: FloatSphericalTriangle.*): callers use it
+/// from 1e-2 sr, where that is 1e-4 relative, and the double sampler below.
+struct FloatSphericalTriangle {
+    Vec3 o, a, b, c;        ///< reference point and unit directions to the vertices
+    Vec3 c_perp_a;          ///< gram_schmidt(c, a)
+    float S = 0.f;          ///< solid angle (the spherical area A)
+    float cos_alpha = 1.f, sin_alpha = 0.f, ab = 0.f;
+    bool valid = false;
+
+    FloatSphericalTriangle() = default;
+    FloatSphericalTriangle(Vec3 p, Vec3 p0, Vec3 p1, Vec3 p2) : o(p) {
+        a = p0 - p, b = p1 - p, c = p2 - p;
+        const float la = std::sqrt(length_squared(a)), lb = std::sqrt(length_squared(b)), lc = std::sqrt(length_squared(c));
+        if (!(la > 0.f) || !(lb > 0.f) || !(lc > 0.f)) return;
+        // The normals from the unnormalised vertex vectors and the edges (a x b = a x (p1 - p0)
+        // ...): no cancellation between nearly parallel directions, as for small triangles.
+        const Vec3 e01 = p1 - p0, e12 = p2 - p1, e20 = p0 - p2;
+        const Vec3 n_ab = cross(a, e01), n_bc = cross(b, e12), n_ca = cross(c, e20);
+        const float D = std::abs(dot(a, cross(e01, -e20)));  // |det(a, b, c)|
+        if (!(D > 0.f)) return;
+        auto unit = [](float re, float im, float &ur, float &ui) {
+            const float inv = 1.f / std::sqrt(re * re + im * im);
+            ur = re * inv, ui = im * inv;
+        };
+        // |n_ab x n_ca| = |a| D etc. (the identity above with unnormalised vectors).
+        float ar, ai, br, bi, gr, gi;
+        unit(-dot(n_ab, n_ca), la * D, ar, ai);
+        unit(-dot(n_bc, n_ab), lb * D, br, bi);
+        unit(-dot(n_ca, n_bc), lc * D, gr, gi);
+        a = a / la, b = b / lb, c = c / lc;
+        const float pr = ar * br - ai * bi, pi = ar * bi + ai * br;
+        const float qr = pr * gr - pi * gi, qi = pr * gi + pi * gr;  // e^{i (alpha + beta + gamma)}
+        S = atan2_approx(-qi, -qr);
+        if (S < 0.f) S += 2.f * Pi;
+        cos_alpha = ar, sin_alpha = ai;
+        ab = dot(a, b);
+        const Vec3 cp = c - a * dot(c, a);
+        const float lcp = length_squared(cp);
+        if (!(lcp > 0.f)) return;
+        c_perp_a = cp / std::sqrt(lcp);
+        valid = std::isfinite(S) && S > 0.f && std::isfinite(ar + br + gr);
+    }
+
+    /// A direction uniform in the spherical triangle (density 1 / S) and the barycentrics of the
+    /// point where it meets the triangle (p0, p1, p2) given to the constructor.
+    bool sample(Vec3 p0, Vec3 p1, Vec3 p2, Vec2 u, float bary[3]) const {
+        if (!valid) return false;
+        float su, cu;
+        sincos_0_2pi(u.x * S, su, cu);  // e^{i (pi + u A)} = -(cu, su)
+        const float sin_phi = su * cos_alpha - cu * sin_alpha, cos_phi = cu * cos_alpha + su * sin_alpha;
+        const float k1 = cos_phi - cos_alpha, k2 = sin_phi + sin_alpha * ab;
+        const float den = (k2 * sin_phi + k1 * cos_phi) * sin_alpha;
+        if (!(std::abs(den) > 0.f)) return false;
+        float cos_bp = ((k2 * cos_phi - k1 * sin_phi) * cos_alpha - k2) / den;
+        if (!std::isfinite(cos_bp)) return false;
+        cos_bp = std::clamp(cos_bp, -1.f, 1.f);
+        const float sin_bp = std::sqrt(std::max(0.f, 1.f - cos_bp * cos_bp));
+        const Vec3 cp = a * cos_bp + c_perp_a * sin_bp;
+        const float cos_t = 1.f - u.y * (1.f - dot(cp, b));
+        const float sin_t = std::sqrt(std::max(0.f, 1.f - cos_t * cos_t));
+        Vec3 t = cp - b * dot(cp, b);
+        const float lt = length_squared(t);
+        t = lt > 0.f ? t / std::sqrt(lt) : Vec3(0, 0, 0);
+        const Vec3 w = b * cos_t + t * sin_t;
+        // Barycentrics of the ray (o, w) with the triangle's plane (Moller-Trumbore).
+        const Vec3 e1 = p1 - p0, e2 = p2 - p0, s1 = cross(w, e2);
+        const float divisor = dot(s1, e1);
+        if (divisor == 0.f || !std::isfinite(divisor)) return false;
+        const float inv = 1.f / divisor;
+        const Vec3 sv = o - p0;
+        float b1 = std::clamp(dot(sv, s1) * inv, 0.f, 1.f), b2 = std::clamp(dot(w, cross(sv, e1)) * inv, 0.f, 1.f);
+        if (b1 + b2 > 1.f) {
+            const float sum = b1 + b2;
+            b1 /= sum, b2 /= sum;
+        }
+        bary[0] = 1.f - b1 - b2, bary[1] = b1, bary[2] = b2;
+        return true;
+    }
+};
 
 }  // namespace sphtri
 }  // namespace meso

@@ -1,5 +1,6 @@
 #include "sampling/distribution.h"
 #include <algorithm>
+#include <cmath>
 #include <numeric>
 
 namespace meso {
@@ -75,39 +76,95 @@ float Distribution1D::pdf(float x) const {
     return m_func[i] / m_func_int;
 }
 
+void Distribution2D::build_row(const float *w, int n, float *cdf, uint32_t *guide) {
+    // Accumulate in double, store in float: rounding keeps the CDF non-decreasing.
+    double total = 0;
+    for (int i = 0; i < n; ++i) total += (std::isfinite(w[i]) && w[i] > 0.f) ? double(w[i]) : 0.0;
+    double acc = 0;
+    cdf[0] = 0.f;
+    for (int i = 0; i < n; ++i) {
+        const double wi = (std::isfinite(w[i]) && w[i] > 0.f) ? double(w[i]) : 0.0;
+        acc += total > 0 ? wi / total : 1.0 / n;
+        cdf[i + 1] = float(acc);
+    }
+    cdf[n] = 1.f;
+    // guide[k]: the cell holding t = 8k / n (the last i with cdf[i] <= t), k = 0 .. ceil(n/8).
+    const int m = guide_size(n);
+    int i = 0;
+    for (int k = 0; k < m; ++k) {
+        const float t = std::min(1.f, float(8.0 * k / n));
+        while (i + 1 < n && cdf[i + 1] <= t) ++i;
+        guide[k] = uint32_t(i);
+    }
+}
+
+int Distribution2D::find(const float *cdf, const uint32_t *guide, int n, float u, float &frac) {
+    // u in [8k/n, 8(k+1)/n): the answer lies in [guide[k], guide[k + 1]] (the cell holding
+    // 8(k+1)/n is at or after it). Branchless binary search for the last cdf[i] <= u there.
+    u = std::clamp(u, 0.f, OneMinusEpsilon);
+    const int k = std::min(int(u * (float(n) * 0.125f)), guide_size(n) - 2);
+    int lo = int(guide[k]), hi = int(guide[k + 1]);
+    // Float rounding of u n / 8 against the guide's 8k / n can put k one off: widen (rarely).
+    while (lo > 0 && cdf[lo] > u) --lo;
+    while (hi + 1 < n && cdf[hi + 1] <= u) ++hi;
+    for (int len = hi - lo + 1; len > 1;) {
+        const int half = len / 2;
+        lo = cdf[lo + half] <= u ? lo + half : lo;
+        len -= half;
+    }
+    const float width = cdf[lo + 1] - cdf[lo];
+    frac = width > 0.f ? std::min(OneMinusEpsilon, std::max(0.f, (u - cdf[lo]) / width)) : 0.f;
+    return lo;
+}
+
 Distribution2D::Distribution2D(const std::vector<float> &func, int nu, int nv) : m_nu(nu), m_nv(nv) {
-    m_conditional.reserve(nv);
+    if (nu <= 0 || nv <= 0) return;
+    m_cdf.resize(size_t(nv) * (nu + 1));
+    m_guide.resize(size_t(nv) * guide_size(nu));
     std::vector<float> marginal(nv);
     for (int v = 0; v < nv; ++v) {
-        std::vector<float> row(func.begin() + size_t(v) * nu, func.begin() + size_t(v + 1) * nu);
-        m_conditional.emplace_back(row);
+        const float *row = func.data() + size_t(v) * nu;
+        build_row(row, nu, m_cdf.data() + size_t(v) * (nu + 1), m_guide.data() + size_t(v) * guide_size(nu));
         // Marginal weight is the row's true integral (0 for black rows, even though the
         // conditional itself falls back to uniform).
-        double s = 0;
-        for (float w : row) s += (std::isfinite(w) && w > 0.f) ? w : 0.f;
-        marginal[v] = float(s / nu);
+        double sum = 0;
+        for (int u = 0; u < nu; ++u) sum += (std::isfinite(row[u]) && row[u] > 0.f) ? row[u] : 0.f;
+        marginal[v] = float(sum / nu);
     }
-    m_marginal = Distribution1D(marginal);
+    m_marginal_cdf.resize(nv + 1);
+    m_marginal_guide.resize(guide_size(nv));
+    build_row(marginal.data(), nv, m_marginal_cdf.data(), m_marginal_guide.data());
 }
 
 Vec2 Distribution2D::sample_continuous(Vec2 u, float *pdf_out) const {
-    float pdf_v, pdf_u;
-    size_t v;
-    float y = m_marginal.sample_continuous(u.y, &pdf_v, &v);
-    float x = m_conditional[v].sample_continuous(u.x, &pdf_u);
-    if (pdf_out) *pdf_out = pdf_u * pdf_v;
-    return {x, y};
+    float fy, fx;
+    const int v = find(m_marginal_cdf.data(), m_marginal_guide.data(), m_nv, u.y, fy);
+    const float *cdf = row_cdf(v);
+    const int i = find(cdf, row_guide(v), m_nu, u.x, fx);
+    if (pdf_out)
+        *pdf_out = (m_marginal_cdf[v + 1] - m_marginal_cdf[v]) * float(m_nv) * (cdf[i + 1] - cdf[i]) * float(m_nu);
+    return {in_cell(i, fx, m_nu), in_cell(v, fy, m_nv)};
+}
+
+float Distribution2D::in_cell(int i, float frac, int n) {
+    // (i + frac) / n rounded into cell i as pdf() finds it (int(x n) == i), so that pdf() of the
+    // sample reads the same cell even where rounding would cross a boundary.
+    float x = std::min((float(i) + frac) / float(n), OneMinusEpsilon);
+    while (x > 0.f && int(x * float(n)) > i) x = std::nextafter(x, 0.f);
+    while (x < OneMinusEpsilon && int(x * float(n)) < i) x = std::nextafter(x, 1.f);
+    return x;
 }
 
 float Distribution2D::pdf(Vec2 p) const {
-    int iv = clamp(int(p.y * m_nv), 0, m_nv - 1);
-    return m_marginal.pdf(p.y) * m_conditional[iv].pdf(p.x);
+    if (m_nu <= 0 || m_nv <= 0) return 0.f;
+    const int v = clamp(int(p.y * float(m_nv)), 0, m_nv - 1), i = clamp(int(p.x * float(m_nu)), 0, m_nu - 1);
+    const float *cdf = row_cdf(v);
+    return (m_marginal_cdf[v + 1] - m_marginal_cdf[v]) * float(m_nv) * (cdf[i + 1] - cdf[i]) * float(m_nu);
 }
 
 size_t Distribution2D::memory_bytes() const {
-    size_t b = (m_marginal.size()) * (sizeof(float) + sizeof(double));
-    for (auto &c : m_conditional) b += c.size() * (sizeof(float) + sizeof(double));
-    return b;
+    return (m_cdf.size() + m_marginal_cdf.size()) * sizeof(float) +
+           (m_guide.size() + m_marginal_guide.size()) * sizeof(uint32_t);
 }
 
 }  // namespace meso

@@ -43,6 +43,7 @@
 #include "core/properties.h"
 #include "core/registry.h"
 #include "prefilter/pipeline.h"
+#include "median_reporter.h"
 
 namespace {
 
@@ -151,19 +152,6 @@ void shading_sample(benchmark::State &state, const Material *m, bool with_pdf) {
     }
 }
 
-/// Records the median CPU time of every benchmark (the single run without repetitions).
-class MedianReporter : public benchmark::ConsoleReporter {
-public:
-    std::map<std::string, double> ns;
-    void ReportRuns(const std::vector<Run> &runs) override {
-        ConsoleReporter::ReportRuns(runs);
-        for (const Run &r : runs) {
-            const bool median = r.run_type == Run::RT_Aggregate && r.aggregate_name == "median";
-            const bool single = r.run_type == Run::RT_Iteration && r.repetitions <= 1;
-            if (median || single) ns[r.run_name.function_name] = r.GetAdjustedCPUTime();
-        }
-    }
-};
 
 void print_summary(const std::map<std::string, double> &ns) {
     std::printf("\nMedian CPU ns per shading sample (ratio = prefiltered / base, same run; uv: %s)\n",
@@ -243,7 +231,7 @@ int main(int argc, char **argv) {
         std::fprintf(stderr, "meso_microbench: setup failed: %s\n", e.what());
         return 1;
     }
-    MedianReporter rep;
+    meso::bench::MedianReporter rep;
     benchmark::RunSpecifiedBenchmarks(&rep);
     print_summary(rep.ns);
     benchmark::Shutdown();

@@ -1,0 +1,70 @@
+// Float trigonometry for the light samplers' hot loops, without libm calls (glibc's sinf/cosf
+// and atan2f are out-of-line calls with argument checks; the double ones cost several times
+// more). Stated errors are absolute, over the whole stated domain, measured against the double
+// functions in tests/test_light_sampling.cpp (FloatTrig.*).
+//   atan2_approx(y, x)      any finite (y, x): A&S 4.4.49 polynomial on [0, 1] plus octant
+//                           symmetries; within 4e-7 rad.
+//   sincos_0_2pi(t, s, c)   t in [0, 2 pi]: Taylor polynomials of degree 11 / 12 on [-pi/2, pi/2]
+//                           after two reflections; within 3e-7.
+#pragma once
+#include <cmath>
+#include "core/math.h"
+
+namespace meso {
+
+/// atan(a) for a in [0, 1] (Abramowitz and Stegun 4.4.49: a times a polynomial of degree 8 in
+/// a^2, error 2e-8 in exact arithmetic).
+inline float atan_unit_interval(float a) {
+    const float z = a * a;
+    float p = 0.0028662257f;
+    p = p * z - 0.0161657367f;
+    p = p * z + 0.0429096138f;
+    p = p * z - 0.0752896400f;
+    p = p * z + 0.1065626393f;
+    p = p * z - 0.1420889944f;
+    p = p * z + 0.1999355085f;
+    p = p * z - 0.3333314528f;
+    return a * (p * z + 1.f);
+}
+
+/// atan2(y, x) in [-pi, pi]; 0 for (0, 0).
+inline float atan2_approx(float y, float x) {
+    const float ax = std::abs(x), ay = std::abs(y);
+    const float hi = std::max(ax, ay), lo = std::min(ax, ay);
+    if (!(hi > 0.f)) return 0.f;
+    float r = atan_unit_interval(lo / hi);
+    if (ay > ax) r = PiOver2 - r;
+    if (x < 0.f) r = Pi - r;
+    return std::copysign(r, y);
+}
+
+/// sin and cos of t in [0, 2 pi] (values a little outside keep the same accuracy).
+inline void sincos_0_2pi(float t, float &s, float &c) {
+    // t - pi in [-pi, pi]: sin t = -sin(t - pi), cos t = -cos(t - pi). Pi as a float plus its
+    // remainder keeps the reduction within 1 ulp.
+    float r = (t - 3.14159274f) + 8.74227766e-8f;
+    float sign_c = -1.f;
+    if (r > PiOver2) {  // sin(pi - r) = sin r, cos(pi - r) = -cos r
+        r = (3.14159274f - r) - 8.74227766e-8f;
+        sign_c = 1.f;
+    } else if (r < -PiOver2) {
+        r = (-3.14159274f - r) + 8.74227766e-8f;
+        sign_c = 1.f;
+    }
+    const float z = r * r;
+    float ps = -2.5052108e-8f;  // -1/11!
+    ps = ps * z + 2.7557319e-6f;
+    ps = ps * z - 1.9841270e-4f;
+    ps = ps * z + 8.3333333e-3f;
+    ps = ps * z - 1.6666667e-1f;
+    float pc = 2.0876757e-9f;  // 1/12!
+    pc = pc * z - 2.7557319e-7f;
+    pc = pc * z + 2.4801587e-5f;
+    pc = pc * z - 1.3888889e-3f;
+    pc = pc * z + 4.1666667e-2f;
+    pc = pc * z - 0.5f;
+    s = -(r + r * z * ps);
+    c = sign_c * (1.f + z * pc);
+}
+
+}  // namespace meso
