@@ -73,6 +73,9 @@ struct TinyModel {
     PrefilteredModel model;  ///< as saved
 };
 
+/// World size of one map tile in lod_scene (a plane 2 units wide, tiling 16), and its height scale.
+constexpr double kLodTile = 2.0 / 16.0;
+
 inline const TinyModel &tiny_model() {
     static const TinyModel m = [] {
         TinyModel t;
@@ -84,13 +87,16 @@ inline const TinyModel &tiny_model() {
         opt.cell_size = 1.0 / kMapSize;  // generated heights are in tile units (patch_ndf.h)
         PrefilteredModel &pm = t.model;
         pm.map_width = pm.map_height = kMapSize;
+        // The surface of lod_scene: one tile is 2 / 16 world units, heights scale 1/8 (slopes
+        // as fitted: height_scale / tile_size = 1, heights in tile units).
+        pm.tile_size = pm.height_scale = kLodTile;
         pm.lobes = 6;
         pm.base = nlohmann::json::parse(kBase);
         pm.manifest = {{"input",
                         {{"map_width", kMapSize},
                          {"map_height", kMapSize},
-                         {"height_scale", 1.0},
-                         {"tile_size", 1.0},
+                         {"height_scale", kLodTile},
+                         {"tile_size", kLodTile},
                          {"base", pm.base}}},
                        {"parameters",
                         {{"lobes", 6}, {"M", kM}, {"N", kN}, {"quadrature_polar", 4}, {"quadrature_azimuth", 6}}}};
@@ -140,7 +146,7 @@ inline std::string lod_scene(const std::string &lod) {
       "shapes": [{{"type": "rectangle",
                   "material": {{"type": "diffuse", "reflectance": 0.8}},
                   "displacement": {{"map": {{"generator": "fbm", "size": {}, "seed": 5, "amplitude": 0.05}},
-                                   "scale": 1, "tiling": 16}},
+                                   "scale": 0.125, "tiling": 16}},
                   "lod": {}}}],
       "lights": [{{"type": "directional", "direction": [0.3, 0.5, -1], "irradiance": 2}}]
     }})",

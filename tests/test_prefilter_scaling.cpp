@@ -230,12 +230,12 @@ TEST(CmdPrefilter, WritesACompleteModel) {
 TEST(CmdPrefilter, WrapClampPrefiltersThePeriodicExtension) {
     const std::string dir = make_model("wrap", {"--generator", "gaussian", "--size", "32", "-p", "mx=0.5", "-p", "sxx=0.02",
                                                 "-p", "syy=0.02", "--scales", "8", "-M", "2", "-N", "4", "--paths", "4",
-                                                "--low-paths", "4", "--interreflections", "off"});
+                                                "--low-paths", "4", "--interreflections", "off", "--tile-size", "2"});
     PrefilteredModel m = PrefilteredModel::load(dir);
     EXPECT_EQ(m.wrap, WrapMode::Clamp);
     EXPECT_EQ(m.map_width, 64);
     EXPECT_EQ(m.manifest["input"]["wrap"], "clamp");
-    EXPECT_DOUBLE_EQ(m.tile_size, 2.0);  // the extension spans two tiles
+    EXPECT_DOUBLE_EQ(m.tile_size, 4.0);  // the extension spans two tiles of the default rectangle's 2
     auto scene_with = [&](const char *wrap) {
         const std::string path = meso::test::scratch_dir("prefilter_wrap") + "/lod_" + wrap + ".json";
         std::ofstream(path) << fmt::format(R"({{"camera": {{"type": "perspective", "width": 8, "height": 8}},
@@ -249,6 +249,41 @@ TEST(CmdPrefilter, WrapClampPrefiltersThePeriodicExtension) {
     meso::test::CliResult bad = scene_with("mirror");
     EXPECT_NE(bad.code, 0);
     EXPECT_NE(bad.err.find("was made with --wrap clamp, the displacement's \"wrap\" is \"mirror\""), std::string::npos) << bad.err;
+}
+
+// Issue 21 ("no hidden conventions", bad input): a LoD block refuses a model made for another
+// surface than the shape's, naming both: another map of the same size (the model records heights
+// at 64 spread vertices), another height scale, another world size of a tile. The consistent
+// scene loads.
+TEST(CmdPrefilter, LodRefusesAModelOfAnotherSurface) {
+    const std::string dir = make_model("surface", {"--generator", "fbm", "--size", "32", "--map-seed", "3", "--scales", "8",
+                                                   "-M", "2", "-N", "4", "--paths", "4", "--low-paths", "4",
+                                                   "--interreflections", "off", "--height-scale", "0.05", "--tile-size", "0.5"});
+    EXPECT_EQ(PrefilteredModel::load(dir).map_samples.size(), size_t(kMapFingerprintSize));
+    // A 2-unit rectangle with tiling 4: tiles of 0.5 world units.
+    auto scene_with = [&](const std::string &name, int seed, double scale, int tiling) {
+        const std::string path = meso::test::scratch_dir("prefilter_surface") + "/" + name + ".json";
+        std::ofstream(path) << fmt::format(R"({{"camera": {{"type": "perspective", "width": 8, "height": 8}},
+          "shapes": [{{"type": "rectangle", "displacement": {{"map": {{"generator": "fbm", "size": 32, "seed": {}}},
+            "scale": {}, "tiling": {}}}, "lod": {{"factors": [1, 8], "model": "{}"}}}}]}})",
+                                           seed, scale, tiling, dir);
+        return meso::test::run_cli_captured({"render", path, "--plan"});
+    };
+    meso::test::CliResult ok = scene_with("same", 3, 0.05, 4);
+    EXPECT_EQ(ok.code, 0) << ok.err;
+    meso::test::CliResult map = scene_with("map", 4, 0.05, 4);
+    EXPECT_NE(map.code, 0);
+    EXPECT_NE(map.err.find("shapes[0].lod.model: the model '" + dir + "' was made from another map"), std::string::npos) << map.err;
+    EXPECT_NE(map.err.find("the displacement's (generator fbm"), std::string::npos) << map.err;
+    meso::test::CliResult hs = scene_with("height", 3, 0.1, 4);
+    EXPECT_NE(hs.code, 0);
+    EXPECT_NE(hs.err.find("was made with --height-scale 0.05 but the displacement's scale is 0.1"), std::string::npos) << hs.err;
+    meso::test::CliResult tile = scene_with("tile", 3, 0.05, 8);
+    EXPECT_NE(tile.code, 0);
+    EXPECT_NE(tile.err.find("was made with --tile-size 0.5 (world size of one tile of its map), but on this shape one tile "
+                            "of the displacement's map is 0.25 x 0.25 world units"),
+              std::string::npos)
+        << tile.err;
 }
 
 TEST(CmdPrefilter, BadInputIsNamed) {
