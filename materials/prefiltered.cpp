@@ -118,22 +118,7 @@ std::shared_ptr<const Material> model_base(const std::shared_ptr<const Prefilter
     ModelCache &c = cache();
     std::lock_guard<std::mutex> lock(c.mutex);
     if (auto b = c.bases[dir].lock()) return b;
-    if (!model->base.is_object())
-        throw MesoError(fmt::format("{}: input.base: expected a material object, got {}",
-                                    (fs::path(dir) / "manifest.json").string(), json_type_name(model->base)));
-    auto ctx = std::make_shared<LoadContext>();
-    ctx->file = (fs::path(dir) / "manifest.json").string();
-    // Relative file names in the base (textures) resolve against input.base_dir (written by
-    // `meso prefilter`: the directory of the --base file) when it exists, else the model directory.
-    ctx->base_dir = dir;
-    const auto &in = model->manifest.find("input");
-    if (in != model->manifest.end() && in->is_object()) {
-        const auto bd = in->find("base_dir");
-        std::error_code ec;
-        if (bd != in->end() && bd->is_string() && fs::is_directory(bd->get<std::string>(), ec))
-            ctx->base_dir = bd->get<std::string>();
-    }
-    std::shared_ptr<const Material> b = create_material(Properties(model->base, "input.base", ctx));
+    std::shared_ptr<const Material> b = create_model_base(*model, dir);
     c.bases[dir] = b;
     return b;
 }

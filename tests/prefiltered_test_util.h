@@ -137,14 +137,14 @@ inline std::string error_of(const std::function<void()> &f) { return meso::test:
 inline std::string lod_scene(const std::string &lod) {
     // 16-texel map tiled 16x over a plane 2 units wide (128 texels per unit); at distance 6 a
     // pixel of the 32-pixel camera covers 2 * 6 tan(20°) / 32 * 128 / 4 ≈ 4.4 texels (spp 16):
-    // level 1 (factor 4) alone.
+    // level 1 (factor 4) alone. The material is the model's base (kBase), as a LoD block requires.
     return fmt::format(R"({{
       "camera": {{"type": "perspective", "origin": [0, -2, 6], "target": [0, 0, 0], "up": [0, 1, 0],
                  "fov": 40, "width": 32, "height": 32}},
       "integrator": {{"type": "path", "max_depth": 3}},
       "sampler": {{"type": "independent", "sample_count": 16}},
       "shapes": [{{"type": "rectangle",
-                  "material": {{"type": "diffuse", "reflectance": 0.8}},
+                  "material": {{"type": "diffuse", "reflectance": [0.8, 0.6, 0.4]}},
                   "displacement": {{"map": {{"generator": "fbm", "size": {}, "seed": 5, "amplitude": 0.05}},
                                    "scale": 0.125, "tiling": 16}},
                   "lod": {}}}],

@@ -239,7 +239,8 @@ TEST(CmdPrefilter, WrapClampPrefiltersThePeriodicExtension) {
     auto scene_with = [&](const char *wrap) {
         const std::string path = meso::test::scratch_dir("prefilter_wrap") + "/lod_" + wrap + ".json";
         std::ofstream(path) << fmt::format(R"({{"camera": {{"type": "perspective", "width": 8, "height": 8}},
-          "shapes": [{{"type": "rectangle", "displacement": {{"map": {{"generator": "gaussian", "size": 32, "mx": 0.5,
+          "shapes": [{{"type": "rectangle", "material": {{"type": "diffuse", "reflectance": 0.8}},
+            "displacement": {{"map": {{"generator": "gaussian", "size": 32, "mx": 0.5,
             "sxx": 0.02, "syy": 0.02}}, "wrap": "{}"}}, "lod": {{"factors": [1, 8], "model": "{}"}}}}]}})",
                                            wrap, dir);
         return meso::test::run_cli_captured({"render", path, "--plan"});
@@ -253,20 +254,22 @@ TEST(CmdPrefilter, WrapClampPrefiltersThePeriodicExtension) {
 
 // Issue 21 ("no hidden conventions", bad input): a LoD block refuses a model made for another
 // surface than the shape's, naming both: another map of the same size (the model records heights
-// at 64 spread vertices), another height scale, another world size of a tile. The consistent
-// scene loads.
+// at 64 spread vertices), another height scale, another world size of a tile, another base BRDF
+// (compared by value). The consistent scene loads.
 TEST(CmdPrefilter, LodRefusesAModelOfAnotherSurface) {
     const std::string dir = make_model("surface", {"--generator", "fbm", "--size", "32", "--map-seed", "3", "--scales", "8",
                                                    "-M", "2", "-N", "4", "--paths", "4", "--low-paths", "4",
                                                    "--interreflections", "off", "--height-scale", "0.05", "--tile-size", "0.5"});
     EXPECT_EQ(PrefilteredModel::load(dir).map_samples.size(), size_t(kMapFingerprintSize));
     // A 2-unit rectangle with tiling 4: tiles of 0.5 world units.
-    auto scene_with = [&](const std::string &name, int seed, double scale, int tiling) {
+    // The model's base is `meso prefilter`'s default, diffuse 0.8.
+    auto scene_with = [&](const std::string &name, int seed, double scale, int tiling,
+                          const char *material = R"({"type": "diffuse", "reflectance": 0.8})") {
         const std::string path = meso::test::scratch_dir("prefilter_surface") + "/" + name + ".json";
         std::ofstream(path) << fmt::format(R"({{"camera": {{"type": "perspective", "width": 8, "height": 8}},
-          "shapes": [{{"type": "rectangle", "displacement": {{"map": {{"generator": "fbm", "size": 32, "seed": {}}},
+          "shapes": [{{"type": "rectangle", "material": {}, "displacement": {{"map": {{"generator": "fbm", "size": 32, "seed": {}}},
             "scale": {}, "tiling": {}}}, "lod": {{"factors": [1, 8], "model": "{}"}}}}]}})",
-                                           seed, scale, tiling, dir);
+                                           material, seed, scale, tiling, dir);
         return meso::test::run_cli_captured({"render", path, "--plan"});
     };
     meso::test::CliResult ok = scene_with("same", 3, 0.05, 4);
@@ -284,6 +287,14 @@ TEST(CmdPrefilter, LodRefusesAModelOfAnotherSurface) {
                             "of the displacement's map is 0.25 x 0.25 world units"),
               std::string::npos)
         << tile.err;
+    // The same BRDF written differently is the same base; another BRDF is not.
+    EXPECT_EQ(scene_with("base_same", 3, 0.05, 4, R"({"reflectance": [0.8, 0.8, 0.8], "type": "diffuse"})").code, 0);
+    meso::test::CliResult base = scene_with("base", 3, 0.05, 4, R"({"type": "conductor", "material": "Au", "alpha": 0.3})");
+    EXPECT_NE(base.code, 0);
+    EXPECT_NE(base.err.find("was made with base material {\"reflectance\":0.8,\"type\":\"diffuse\"} but the shape's "
+                            "material is another BRDF"),
+              std::string::npos)
+        << base.err;
 }
 
 TEST(CmdPrefilter, BadInputIsNamed) {

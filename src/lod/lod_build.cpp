@@ -111,6 +111,39 @@ std::string tile_mismatch(const prefilter::PrefilteredModel &model, const Displa
                        model.dir, ts, tu, tv, lu, lv, disp.tiling_u, disp.tiling_v);
 }
 
+/// Where the shape's material is not the model's base BRDF (the levels' prefiltered materials
+/// would switch BRDF at level 0): a message naming both, or "". Compared by value, not by JSON
+/// text: eval at 24 fixed (wo, wi) pairs (normal to grazing, mirror and off-mirror) and 3 uvs on a
+/// flat surface, within 1e-3 relative.
+std::string base_mismatch(const prefilter::PrefilteredModel &model, const std::string &dir, const Material &shape_material) {
+    std::shared_ptr<Material> base;
+    try {
+        base = prefilter::create_model_base(model, dir);
+    } catch (const MesoError &) {
+        return "";  // the prefiltered material reports a broken base
+    }
+    ShadingContext ctx;
+    ctx.dpdu = Vec3(1, 0, 0);
+    ctx.dpdv = Vec3(0, 1, 0);
+    for (Vec2 uv : {Vec2(0.25f, 0.5f), Vec2(0.7f, 0.1f), Vec2(0.05f, 0.9f)})
+        for (float to : {0.f, 0.5f, 1.1f, 1.45f})
+            for (float ti : {0.2f, 0.9f, 1.3f})
+                for (float dphi : {0.f, 3.14159265f}) {
+                    ctx.uv = uv;
+                    const Vec3 wo(std::sin(to), 0.f, std::cos(to));
+                    const Vec3 wi(std::sin(ti) * std::cos(dphi), std::sin(ti) * std::sin(dphi), std::cos(ti));
+                    const Spectrum a = base->eval(ctx, wo, wi), b = shape_material.eval(ctx, wo, wi);
+                    for (int c = 0; c < 3; ++c)
+                        if (!(std::abs(a[c] - b[c]) <= 1e-3f * std::max({std::abs(a[c]), std::abs(b[c]), 1e-3f})))
+                            return fmt::format("the model '{}' was made with base material {} but the shape's material "
+                                               "is another BRDF ({}: at uv ({:g}, {:g}), theta_o {:g}, theta_i {:g} rad, "
+                                               "f = {:.5g} against {:.5g}); the prefiltered levels would switch BRDF",
+                                               dir, model.base.dump(), shape_material.to_string(), uv.x, uv.y, to,
+                                               ti, a[c], b[c]);
+                }
+    return "";
+}
+
 /// The prefiltered model of spec.model_dir, checked against the displacement and the shape: the
 /// same map (size and heights), wrap, height scale and tile size, and a level for every factor
 /// of the chain.
@@ -137,6 +170,8 @@ prefilter::PrefilteredModel load_lod_model(const LodSpec &spec, const Displaceme
                                      "its NDFs and scaling functions would describe other geometry",
                                      dir, hs, disp.scale));
     if (std::string why = tile_mismatch(model, disp, shape); !why.empty()) lp.fail("model", why);
+    if (spec.materials.empty() && shape.material)
+        if (std::string why = base_mismatch(model, dir, *shape.material); !why.empty()) lp.fail("model", why);
     for (size_t k = 1; k < spec.factors.size(); ++k) {
         const float f = spec.factors[k];
         if (f != std::floor(f) || !model.level_for_factor(int(f)))

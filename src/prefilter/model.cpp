@@ -261,6 +261,23 @@ void PrefilteredModel::save(const std::string &out) const {
     write_text_atomic((fs::path(out) / "manifest.json").string(), j.dump(2) + "\n");
 }
 
+std::shared_ptr<Material> create_model_base(const PrefilteredModel &model, const std::string &dir) {
+    if (!model.base.is_object())
+        throw MesoError(fmt::format("{}: input.base: expected a material object, got {}",
+                                    (fs::path(dir) / "manifest.json").string(), json_type_name(model.base)));
+    auto ctx = std::make_shared<LoadContext>();
+    ctx->file = (fs::path(dir) / "manifest.json").string();
+    ctx->base_dir = dir;
+    const auto &in = model.manifest.find("input");
+    if (in != model.manifest.end() && in->is_object()) {
+        const auto bd = in->find("base_dir");
+        std::error_code ec;
+        if (bd != in->end() && bd->is_string() && fs::is_directory(bd->get<std::string>(), ec))
+            ctx->base_dir = bd->get<std::string>();
+    }
+    return create_material(Properties(model.base, "input.base", ctx));
+}
+
 std::vector<std::pair<int, int>> map_fingerprint_vertices(int w, int h) {
     // R2 sequence (Roberts 2018, the plastic constant): well spread for any w x h.
     const double g = 1.32471795724474602596, a1 = 1.0 / g, a2 = 1.0 / (g * g);

@@ -126,6 +126,11 @@ struct PrefilteredModel {
     std::vector<double> map_samples;
 };
 
+/// The model's own base material (manifest input.base), built anew: relative file names in it
+/// resolve against input.base_dir (where `meso prefilter` read the --base file) when that
+/// directory exists, else the model directory `dir`. Throws MesoError naming the manifest.
+std::shared_ptr<Material> create_model_base(const PrefilteredModel &model, const std::string &dir);
+
 /// kMapFingerprintSize vertices of a w x h map spread by a fixed low-discrepancy rule: the model
 /// records the map's heights there (input.map_samples) so that a scene with another map of the
 /// same size is told (lod/lod_build.cpp).
