@@ -15,6 +15,9 @@
 //   shadow/<mode>     Scene::occluded of rays spawned at each scene's own camera hits towards
 //                     4096 cosine-distributed directions about the macro normal (a next-event ray
 //                     towards an environment: some blocked by the relief, most not)
+//   field/<kernel>    the heightfield intersector alone on the scene's map: 4096 rays from just
+//                     above its height slab at cosine-distributed angles, closest hit with the
+//                     SIMD traversal (intersect) and the scalar reference (intersect_reference)
 //   path/<mode>       one full path per sample: the scene rendered at 64 x 64, 1 spp, 1 thread
 //                     (path tracer, depth 6, constant sky + sun), time / 4096 samples
 // A table at the end gives the medians and shell / triangle. Defaults (overridable): 5
@@ -33,6 +36,7 @@
 #include <unistd.h>
 #include <fmt/format.h>
 #include "core/math.h"
+#include "geometry/shell_shape.h"
 #include "render/renderer.h"
 #include "render/scene.h"
 
@@ -135,6 +139,35 @@ void bench_occluded(benchmark::State &state, const Scene *s, const std::vector<R
     }
 }
 
+/// Rays in the heightfield's cell space: from just above its slab, cosine-distributed downwards.
+struct FieldRays {
+    std::vector<Vec3> o, d;
+};
+
+FieldRays make_field_rays(const Heightfield &hf) {
+    std::mt19937 rng(23);
+    std::uniform_real_distribution<double> U(0.0, 1.0);
+    FieldRays r;
+    for (size_t k = 0; k < kRays; ++k) {
+        const double u1 = U(rng), phi = 2 * 3.14159265358979 * U(rng), ct = std::sqrt(1 - u1), st = std::sqrt(u1);
+        r.d.push_back(Vec3(float(st * std::cos(phi)), float(st * std::sin(phi)), float(-ct)));
+        r.o.push_back(Vec3(float(hf.width() * U(rng)), float(hf.height() * U(rng)), hf.max_height() + 1e-3f));
+    }
+    return r;
+}
+
+void bench_field(benchmark::State &state, const Heightfield *hf, const FieldRays *rays, bool reference) {
+    size_t i = 0;
+    for (auto _ : state) {
+        HeightfieldHit h;
+        bool hit = reference ? hf->intersect_reference(rays->o[i], rays->d[i], 0.f, Infinity, h)
+                             : hf->intersect(rays->o[i], rays->d[i], 0.f, Infinity, h);
+        benchmark::DoNotOptimize(hit);
+        benchmark::DoNotOptimize(h.t);
+        i = (i + 1) & (kRays - 1);
+    }
+}
+
 void bench_path(benchmark::State &state, const Scene *s) {
     RenderOptions o;
     o.spp = 1;
@@ -166,6 +199,9 @@ void print_summary(const std::map<std::string, double> &ns) {
                 "run\n",
                 g_map, g_random_pixels ? "through random pixels" : "through a 64 x 64 tile");
     std::printf("  %-10s %12s %12s %8s\n", "kind", "triangle", "shell", "ratio");
+    if (ns.count("field/simd") && ns.count("field/reference"))
+        std::printf("  heightfield alone: SIMD %.1f ns, scalar reference %.1f ns (%.2fx)\n", ns.at("field/simd"),
+                    ns.at("field/reference"), ns.at("field/simd") / ns.at("field/reference"));
     for (const char *kind : {"hit", "hit_t", "occluded", "shadow", "path"}) {
         auto get = [&](const std::string &mode) {
             auto it = ns.find(fmt::format("{}/{}", kind, mode));
@@ -200,12 +236,18 @@ int main(int argc, char **argv) {
     fs::create_directories(scratch);
     std::unique_ptr<Scene> tri, shell, tri_small, shell_small;
     Rays rays;
+    FieldRays field_rays;
+    const Heightfield *field = nullptr;
     try {
         tri = make_scene(scratch, "tessellate", 512, 512);
         shell = make_scene(scratch, "shell", 512, 512);
         tri_small = make_scene(scratch, "tessellate", 64, 64);
         shell_small = make_scene(scratch, "shell", 64, 64);
         rays = make_rays(*tri, *shell);
+        auto *shape = dynamic_cast<const ShellShape *>(shell->shapes.at(0).get());
+        if (!shape) throw std::runtime_error("the shell scene's shape is no ShellShape");
+        field = shape->displacement().field.get();
+        field_rays = make_field_rays(*field);
     } catch (const std::exception &e) {
         std::fprintf(stderr, "meso_microbench_trace: setup failed: %s\n", e.what());
         return 1;
@@ -221,6 +263,9 @@ int main(int argc, char **argv) {
         benchmark::RegisterBenchmark(("shadow/" + m).c_str(), bench_occluded, s, shadow)->Unit(benchmark::kNanosecond);
         benchmark::RegisterBenchmark(("path/" + m).c_str(), bench_path, small)->Unit(benchmark::kNanosecond);
     }
+    for (bool reference : {false, true})
+        benchmark::RegisterBenchmark(reference ? "field/reference" : "field/simd", bench_field, field, &field_rays, reference)
+            ->Unit(benchmark::kNanosecond);
     MedianReporter rep;
     benchmark::RunSpecifiedBenchmarks(&rep);
     print_summary(rep.ns);
