@@ -15,9 +15,10 @@
 //   shadow/<mode>     Scene::occluded of rays spawned at each scene's own camera hits towards
 //                     4096 cosine-distributed directions about the macro normal (a next-event ray
 //                     towards an environment: some blocked by the relief, most not)
-//   field/<kernel>    the heightfield intersector alone on the scene's map: 4096 rays from just
-//                     above its height slab at cosine-distributed angles, closest hit with the
-//                     SIMD traversal (intersect) and the scalar reference (intersect_reference)
+//   field/<kernel>    the heightfield intersector alone on the scene's map, in the shell's cell
+//                     space: 4096 rays, half from just above the slab going down, half leaving
+//                     the surface going up (cosine-distributed), closest hit with the SIMD
+//                     traversal (intersect) and the scalar reference (intersect_reference)
 //   path/<mode>       one full path per sample: the scene rendered at 64 x 64, 1 spp, 1 thread
 //                     (path tracer, depth 6, constant sky + sun), time / 4096 samples
 // A table at the end gives the medians and shell / triangle. Defaults (overridable): 5
@@ -139,7 +140,10 @@ void bench_occluded(benchmark::State &state, const Scene *s, const std::vector<R
     }
 }
 
-/// Rays in the heightfield's cell space: from just above its slab, cosine-distributed downwards.
+/// Rays in the heightfield's cell space as the shell gives them on this plane (cells are
+/// width / 2 a world unit, heights are in world units): even ones from just above the slab,
+/// cosine-distributed downwards; odd ones leaving the surface, cosine-distributed upwards (a
+/// diffuse bounce, the long grazing walks through the slab).
 struct FieldRays {
     std::vector<Vec3> o, d;
 };
@@ -147,11 +151,15 @@ struct FieldRays {
 FieldRays make_field_rays(const Heightfield &hf) {
     std::mt19937 rng(23);
     std::uniform_real_distribution<double> U(0.0, 1.0);
+    const double cells_per_unit = hf.width() / 2.0;
     FieldRays r;
     for (size_t k = 0; k < kRays; ++k) {
         const double u1 = U(rng), phi = 2 * 3.14159265358979 * U(rng), ct = std::sqrt(1 - u1), st = std::sqrt(u1);
-        r.d.push_back(Vec3(float(st * std::cos(phi)), float(st * std::sin(phi)), float(-ct)));
-        r.o.push_back(Vec3(float(hf.width() * U(rng)), float(hf.height() * U(rng)), hf.max_height() + 1e-3f));
+        const bool up = k % 2 == 1;
+        const float x = float(hf.width() * U(rng)), y = float(hf.height() * U(rng));
+        r.d.push_back(Vec3(float(st * std::cos(phi) * cells_per_unit), float(st * std::sin(phi) * cells_per_unit),
+                           float(up ? ct : -ct)));
+        r.o.push_back(Vec3(x, y, up ? hf.eval(x, y) + 1e-5f : hf.max_height() + 1e-3f));
     }
     return r;
 }
