@@ -90,7 +90,39 @@ void occluded_cb(const RTCOccludedFunctionNArguments *args) {
     }
 }
 
+/// Tetrahedron k's world -> cell map applied to world point w (in double).
+template <class Tet>
+void map_to_cell(const Tet &T, const double w[3], double c[3]) {
+    const double r[3] = {w[0] - T.w0[0], w[1] - T.w0[1], w[2] - T.w0[2]};
+    for (int i = 0; i < 3; ++i) c[i] = T.t0[i] + T.A[3 * i] * r[0] + T.A[3 * i + 1] * r[1] + T.A[3 * i + 2] * r[2];
+}
+
 }  // namespace
+
+/// The Prism::same_map bits: tetrahedra k and k' share a map when k's map takes every vertex
+/// of k' to its cell-space position within 8 float ulps of the prism's cell-space extent
+/// (the round-off of one map; affine maps agree inside k' if they agree at its vertices).
+uint8_t ShellShape::shared_maps(const Prism &P, const double wv[6][3], const double tv[6][3]) {
+    static const int kTets[3][4] = {{0, 1, 2, 3}, {1, 2, 3, 4}, {2, 3, 4, 5}};
+    double extent = 1.0;
+    for (int v = 0; v < 6; ++v)
+        for (int c = 0; c < 3; ++c) extent = std::max(extent, std::abs(tv[v][c]));
+    const double tol = 8.0 * 0x1p-24 * extent;
+    uint8_t bits = 0;
+    for (int k = 0; k < 3; ++k)
+        for (int k2 = k + 1; k2 < 3; ++k2) {
+            if (!(P.valid >> k & 1) || !(P.valid >> k2 & 1)) continue;
+            bool same = true;
+            for (int q = 0; q < 4 && same; ++q) {
+                double c[3];
+                const int v = kTets[k2][q];
+                map_to_cell(P.tet[k], wv[v], c);
+                for (int i = 0; i < 3; ++i) same = same && std::abs(c[i] - tv[v][i]) <= tol;
+            }
+            if (same) bits |= uint8_t(1u << (k + k2 - 1));
+        }
+    return bits;
+}
 
 ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string name)
     : m_disp(std::move(disp)), m_base(base), m_name(std::move(name)) {
@@ -168,6 +200,7 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
             P.valid |= uint8_t(1u << k);
         }
         if (!P.valid) continue;
+        P.same_map = shared_maps(P, wv, tv);
         m_prisms.push_back(P);
         m_prism_tri.push_back(uint32_t(t));
         areas.push_back(area);
@@ -241,6 +274,16 @@ bool ShellShape::trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float 
     if (ns == 0) return false;
     for (int i = 1; i < ns; ++i)  // insertion sort of at most three segments by entry
         for (int j = i; j > 0 && seg[j].t0 < seg[j - 1].t0; --j) std::swap(seg[j], seg[j - 1]);
+    // Overlapping segments of tetrahedra with one map become one segment, traced once.
+    if (P.same_map) {
+        int m = 1;
+        for (int i = 1; i < ns; ++i) {
+            Seg &last = seg[m - 1];
+            if ((P.same_map >> (last.k + seg[i].k - 1) & 1) && seg[i].t0 <= last.t1) last.t1 = std::max(last.t1, seg[i].t1);
+            else seg[m++] = seg[i];
+        }
+        ns = m;
+    }
     bool found = false;
     float best = tfar;
     const Heightfield &hf = *m_disp.field;

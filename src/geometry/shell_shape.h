@@ -76,7 +76,12 @@ private:
         Tet tet[3];
         int64_t ox = 0, oy = 0;  ///< integer cell origin
         uint8_t valid = 0;       ///< bit k: tetrahedron k has a volume
+        /// Bit k + k' - 1 (pairs 01, 02, 12): tetrahedra k and k' map world to cell space by
+        /// the same affine map up to float round-off (a flat base with linear uvs), so a ray
+        /// crossing both is traced in one heightfield call.
+        uint8_t same_map = 0;
     };
+    static uint8_t shared_maps(const Prism &P, const double wv[6][3], const double tv[6][3]);
     /// Clips o + t d to tetrahedron `T` within [t0, t1]; false if empty.
     static bool clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1);
     template <bool AnyHit>
