@@ -40,6 +40,7 @@
 #include "geometry/shell_shape.h"
 #include "render/renderer.h"
 #include "render/scene.h"
+#include "median_reporter.h"
 
 namespace {
 
@@ -122,20 +123,13 @@ void bench_hit(benchmark::State &state, const Scene *s, const std::vector<Ray> *
     }
 }
 
-void bench_hit_t(benchmark::State &state, const Scene *s, const std::vector<Ray> *rays) {
+/// intersect_t (occluded = false) or occluded per iteration: one float or bool of answer.
+void bench_bare(benchmark::State &state, const Scene *s, const std::vector<Ray> *rays, bool occluded) {
     size_t i = 0;
     for (auto _ : state) {
-        float t = s->intersect_t((*rays)[i]);
-        benchmark::DoNotOptimize(t);
-        i = (i + 1) & (kRays - 1);
-    }
-}
-
-void bench_occluded(benchmark::State &state, const Scene *s, const std::vector<Ray> *rays) {
-    size_t i = 0;
-    for (auto _ : state) {
-        bool o = s->occluded((*rays)[i]);
-        benchmark::DoNotOptimize(o);
+        const Ray &r = (*rays)[i];
+        float answer = occluded ? float(s->occluded(r)) : s->intersect_t(r);
+        benchmark::DoNotOptimize(answer);
         i = (i + 1) & (kRays - 1);
     }
 }
@@ -188,20 +182,6 @@ void bench_path(benchmark::State &state, const Scene *s) {
     }
 }
 
-/// Records the median CPU time of every benchmark (the single run without repetitions).
-class MedianReporter : public benchmark::ConsoleReporter {
-public:
-    std::map<std::string, double> ns;
-    void ReportRuns(const std::vector<Run> &runs) override {
-        ConsoleReporter::ReportRuns(runs);
-        for (const Run &r : runs) {
-            const bool median = r.run_type == Run::RT_Aggregate && r.aggregate_name == "median";
-            const bool single = r.run_type == Run::RT_Iteration && r.repetitions <= 1;
-            if (median || single) ns[r.run_name.function_name] = r.GetAdjustedCPUTime();
-        }
-    }
-};
-
 void print_summary(const std::map<std::string, double> &ns) {
     std::printf("\nMedian CPU ns per ray (path: per sample), map %d^2, camera rays %s; ratio = shell / triangle, same "
                 "run\n",
@@ -225,20 +205,13 @@ void print_summary(const std::map<std::string, double> &ns) {
 }  // namespace
 
 int main(int argc, char **argv) {
-    // Defaults first; flags given on the command line come later and win.
-    std::vector<std::string> args = {argv[0], "--benchmark_repetitions=5", "--benchmark_enable_random_interleaving=true",
-                                     "--benchmark_report_aggregates_only=true", "--benchmark_min_time=0.2"};
-    for (int a = 1; a < argc; ++a) {
-        const std::string arg = argv[a];
+    const bool ok = bench::initialize(argc, argv, [](const std::string &arg) {
         if (arg.rfind("--map=", 0) == 0) g_map = std::max(2, std::atoi(arg.c_str() + 6));
         else if (arg == "--rays=random" || arg == "--rays=tile") g_random_pixels = arg == "--rays=random";
-        else args.push_back(arg);
-    }
-    std::vector<char *> argp;
-    for (std::string &s : args) argp.push_back(s.data());
-    int n = int(argp.size());
-    benchmark::Initialize(&n, argp.data());
-    if (benchmark::ReportUnrecognizedArguments(n, argp.data())) return 1;
+        else return false;
+        return true;
+    });
+    if (!ok) return 1;
 
     const fs::path scratch = fs::temp_directory_path() / fmt::format("meso_microbench_trace_{}", ::getpid());
     fs::create_directories(scratch);
@@ -265,20 +238,14 @@ int main(int argc, char **argv) {
           std::tuple{"shell", shell.get(), shell_small.get(), &rays.shadow_shell}}) {
         const std::string m = mode;
         benchmark::RegisterBenchmark(("hit/" + m).c_str(), bench_hit, s, &rays.camera)->Unit(benchmark::kNanosecond);
-        benchmark::RegisterBenchmark(("hit_t/" + m).c_str(), bench_hit_t, s, &rays.camera)->Unit(benchmark::kNanosecond);
-        benchmark::RegisterBenchmark(("occluded/" + m).c_str(), bench_occluded, s, &rays.camera)
+        benchmark::RegisterBenchmark(("hit_t/" + m).c_str(), bench_bare, s, &rays.camera, false)->Unit(benchmark::kNanosecond);
+        benchmark::RegisterBenchmark(("occluded/" + m).c_str(), bench_bare, s, &rays.camera, true)
             ->Unit(benchmark::kNanosecond);
-        benchmark::RegisterBenchmark(("shadow/" + m).c_str(), bench_occluded, s, shadow)->Unit(benchmark::kNanosecond);
+        benchmark::RegisterBenchmark(("shadow/" + m).c_str(), bench_bare, s, shadow, true)->Unit(benchmark::kNanosecond);
         benchmark::RegisterBenchmark(("path/" + m).c_str(), bench_path, small)->Unit(benchmark::kNanosecond);
     }
     for (bool reference : {false, true})
         benchmark::RegisterBenchmark(reference ? "field/reference" : "field/simd", bench_field, field, &field_rays, reference)
             ->Unit(benchmark::kNanosecond);
-    MedianReporter rep;
-    benchmark::RunSpecifiedBenchmarks(&rep);
-    print_summary(rep.ns);
-    benchmark::Shutdown();
-    std::error_code ec;
-    fs::remove_all(scratch, ec);
-    return 0;
+    return bench::run(print_summary, scratch);
 }
