@@ -51,6 +51,18 @@ bool shell_hit(const ShellShape &s, Vec3 o, Vec3 d, float &t) {
     return hit;
 }
 
+/// Whether the ray stays on or above the surface (within 1e-6 height units) strictly between
+/// t0 and t1: then the earlier of two hits there is a tangential touch (a graze) and either
+/// answer is right to round-off. Cell space: x = (X + 1) sx, y = (Y + 1) sy.
+bool grazes_between(const Heightfield &f, Vec3 o, Vec3 d, double sx, double sy, double t0, double t1) {
+    for (int k = 1; k < 256; ++k) {
+        const double t = t0 + (t1 - t0) * k / 256;
+        const double gap = (double(o.z) + t * d.z) - f.eval((double(o.x) + t * d.x + 1) * sx, (double(o.y) + t * d.y + 1) * sy);
+        if (gap < -1e-6) return false;
+    }
+    return true;
+}
+
 }  // namespace
 
 TEST(ShellShape, FlatSquareHitsEqualTheHeightfieldsOnTheMappedRay) {
@@ -58,7 +70,7 @@ TEST(ShellShape, FlatSquareHitsEqualTheHeightfieldsOnTheMappedRay) {
         const SquareShell sq = square_shell(64, 48, 0.05f, tiling, 31);
         const double sx = 0.5 * sq.W * tiling, sy = 0.5 * sq.H * tiling;  // cells per world unit
         PCG32 rng(17);
-        int compared = 0, disagree = 0;
+        int compared = 0, disagree = 0, grazes = 0;
         double worst = 0;
         for (int k = 0; k < 20000; ++k) {
             // Aimed at a point inside the square from above, at up to 85 degrees from the normal.
@@ -87,11 +99,19 @@ TEST(ShellShape, FlatSquareHitsEqualTheHeightfieldsOnTheMappedRay) {
             // Round-off: float ulps of the cell coordinates (up to 192 cells here, ulp 1.5e-5)
             // divided by the ray's slope against the surface; measured worst 2.6e-6 (1 + t) with
             // tetrahedra merged, 1.7e-6 without.
-            worst = std::max(worst, std::abs(double(ts) - h.t) / (1e-5 * (1 + double(h.t))));
+            const double err = std::abs(double(ts) - h.t) / (1e-5 * (1 + double(h.t)));
+            if (err > 1.0 && grazes_between(*sq.field, o, d, sx, sy, std::min(double(ts), double(h.t)),
+                                            std::max(double(ts), double(h.t)))) {
+                ++grazes;  // one of the two stopped at a tangential touch the other passed
+                continue;
+            }
+            worst = std::max(worst, err);
         }
         EXPECT_GT(compared, 15000) << tiling;
+        EXPECT_LE(grazes, compared / 1000) << tiling;
         EXPECT_EQ(disagree, 0) << tiling;
-        EXPECT_LE(worst, 1.0) << "tiling " << tiling << ": worst |t_shell - t_field| in units of 1e-5 (1 + t)";
-        std::printf("[shell vs field] tiling %g: %d hits compared, worst %.3g x 1e-5 (1 + t)\n", tiling, compared, worst);
+        EXPECT_LE(worst, 1.0) << "tiling " << tiling << ": worst |t_shell - t_field| in units of 1e-5 (1 + t), grazes left out";
+        std::printf("[shell vs field] tiling %g: %d hits compared, %d grazes, worst %.3g x 1e-5 (1 + t)\n", tiling,
+                    compared, grazes, worst);
     }
 }

@@ -68,7 +68,10 @@ public:
 private:
     struct Tet {
         float w0[3];     ///< world vertex 0
-        float B[9];      ///< world -> barycentric (lambda_1..3 of p - w0), row-major
+        /// World -> barycentric: lambda_k(p) = [k == 0] + N[c][k] (p - w0)_c for k = 0..3,
+        /// components c = x, y, z in rows (four lambdas per SSE register); N[.][0] = -(sum
+        /// of the other three), so the lambdas sum to 1.
+        float N[3][4];
         float A[9];      ///< world -> cell space (Jacobian), row-major
         float t0[3];     ///< cell-space vertex 0 (relative to the prism's cell origin)
     };
