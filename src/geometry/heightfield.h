@@ -1,6 +1,9 @@
 // The heightfield intersector: a periodic, piecewise-bilinear heightfield in cell space
 // (see heightmap.h) with a min/max height pyramid (maximum mip-maps, Tevs et al. 2008),
 // traversed top-down front-to-back, with an exact ray / bilinear-patch test at the leaves.
+// The pyramid is stored in 2 x 2 blocks (a node's four children's mins, then maxes), and the
+// traversal tests a node's four children at once with SSE, with the same float operations as
+// the scalar node-at-a-time reference (intersect_reference), so both give bitwise the same hits.
 //
 // This is the one heightfield tracer of meso: shell-mapped displacement calls it with the
 // ray mapped into cell space through a tetrahedron, and the prefiltering precomputation

@@ -16,7 +16,9 @@
 //   the prism's integer cell origin; fill_interaction rebuilds the micro-normal
 //   (inverse-transpose of the texture-to-world Jacobian applied to (-h_x, -h_y, 1)),
 //   the micro uv and dp/du, dp/dv.
-// * Memory: per prism three 24-float tetrahedra plus an integer cell origin, and the
+// * Tetrahedra of one prism that share their world -> cell map (a flat base with linear uvs)
+//   are traced as one segment (Prism::same_map); the clip runs in float SSE (four faces at once).
+// * Memory: per prism three 27-float tetrahedra plus an integer cell origin, and the
 //   heightfield (map + min/max pyramid) once, whatever the tiling.
 #pragma once
 #include <memory>
