@@ -1,8 +1,13 @@
 #include "geometry/heightfield.h"
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <fmt/format.h>
 #include "core/error.h"
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 namespace meso {
 
@@ -32,6 +37,46 @@ inline float bilinear_patch(float h00, float h10, float h01, float h11, float a,
     return h00 + a * (h10 - h00) + b * (h01 - h00) + a * b * g;
 }
 
+/// A pyramid level as built: w x h nodes, min and max height of each (2 floats a node).
+struct FlatLevel {
+    int w = 0, h = 0;
+    std::vector<float> minmax;
+};
+
+/// The next level up: node (i, j) covers the children (2i..2i+1, 2j..2j+1) that exist.
+FlatLevel coarser_level(const FlatLevel &c) {
+    FlatLevel n{(c.w + 1) / 2, (c.h + 1) / 2, {}};
+    n.minmax.resize(size_t(n.w) * n.h * 2);
+    for (int j = 0; j < n.h; ++j)
+        for (int i = 0; i < n.w; ++i) {
+            float mn = Infinity, mx = -Infinity;
+            for (int dj = 0; dj < 2; ++dj)
+                for (int di = 0; di < 2; ++di) {
+                    int ci = 2 * i + di, cj = 2 * j + dj;
+                    if (ci >= c.w || cj >= c.h) continue;
+                    mn = std::min(mn, c.minmax[(size_t(cj) * c.w + ci) * 2]);
+                    mx = std::max(mx, c.minmax[(size_t(cj) * c.w + ci) * 2 + 1]);
+                }
+            n.minmax[(size_t(j) * n.w + i) * 2] = mn;
+            n.minmax[(size_t(j) * n.w + i) * 2 + 1] = mx;
+        }
+    return n;
+}
+
+/// The level's min/max in 2 x 2 blocks of nodes (Heightfield::Level::quads), qw blocks a row.
+std::vector<float> pack_quads(const FlatLevel &f, int qw) {
+    const int qh = (f.h + 1) / 2;
+    std::vector<float> quads(size_t(qw) * qh * 8, 0.f);
+    for (int j = 0; j < f.h; ++j)
+        for (int i = 0; i < f.w; ++i) {
+            float *q = &quads[(size_t(j >> 1) * qw + size_t(i >> 1)) * 8];
+            const int slot = (i & 1) | (j & 1) << 1;
+            q[slot] = f.minmax[(size_t(j) * f.w + i) * 2];
+            q[4 + slot] = f.minmax[(size_t(j) * f.w + i) * 2 + 1];
+        }
+    return quads;
+}
+
 }  // namespace
 
 Heightfield::Heightfield(const HeightMap &map, float scale, float offset) {
@@ -51,43 +96,29 @@ Heightfield::Heightfield(const HeightMap &map, float scale, float offset) {
         m_min = std::min(m_min, v);
         m_max = std::max(m_max, v);
     }
-    // Level 0: one node per cell, min/max of its four corners (wrapping).
-    Level l0;
-    l0.w = m_w;
-    l0.h = m_h;
-    l0.minmax.resize(size_t(m_w) * m_h * 2);
+    // Level 0: one node per cell, min/max of its four corners (wrapping); level k + 1: node
+    // (i, j) covers the children (2i..2i+1, 2j..2j+1) of level k that exist. Built flat (2
+    // floats a node), stored in 2 x 2 blocks (Level::quads).
+    FlatLevel flat{m_w, m_h, std::vector<float>(size_t(m_w) * m_h * 2)};
     for (int j = 0; j < m_h; ++j) {
         int j1 = j + 1 == m_h ? 0 : j + 1;
         for (int i = 0; i < m_w; ++i) {
             int i1 = i + 1 == m_w ? 0 : i + 1;
             float a = m_heights[size_t(j) * m_w + i], b = m_heights[size_t(j) * m_w + i1];
             float c = m_heights[size_t(j1) * m_w + i], d = m_heights[size_t(j1) * m_w + i1];
-            l0.minmax[(size_t(j) * m_w + i) * 2] = std::min(std::min(a, b), std::min(c, d));
-            l0.minmax[(size_t(j) * m_w + i) * 2 + 1] = std::max(std::max(a, b), std::max(c, d));
+            flat.minmax[(size_t(j) * m_w + i) * 2] = std::min(std::min(a, b), std::min(c, d));
+            flat.minmax[(size_t(j) * m_w + i) * 2 + 1] = std::max(std::max(a, b), std::max(c, d));
         }
     }
-    m_levels.push_back(std::move(l0));
-    // Level k+1: node (i, j) covers children (2i..2i+1, 2j..2j+1) of level k that exist.
-    while (m_levels.back().w > 1 || m_levels.back().h > 1) {
-        const Level &c = m_levels.back();
-        Level n;
-        n.w = (c.w + 1) / 2;
-        n.h = (c.h + 1) / 2;
-        n.minmax.resize(size_t(n.w) * n.h * 2);
-        for (int j = 0; j < n.h; ++j)
-            for (int i = 0; i < n.w; ++i) {
-                float mn = Infinity, mx = -Infinity;
-                for (int dj = 0; dj < 2; ++dj)
-                    for (int di = 0; di < 2; ++di) {
-                        int ci = 2 * i + di, cj = 2 * j + dj;
-                        if (ci >= c.w || cj >= c.h) continue;
-                        mn = std::min(mn, c.minmax[(size_t(cj) * c.w + ci) * 2]);
-                        mx = std::max(mx, c.minmax[(size_t(cj) * c.w + ci) * 2 + 1]);
-                    }
-                n.minmax[(size_t(j) * n.w + i) * 2] = mn;
-                n.minmax[(size_t(j) * n.w + i) * 2 + 1] = mx;
-            }
-        m_levels.push_back(std::move(n));
+    for (;;) {
+        Level L;
+        L.w = flat.w;
+        L.h = flat.h;
+        L.qw = (flat.w + 1) / 2;
+        L.quads = pack_quads(flat, L.qw);
+        m_levels.push_back(std::move(L));
+        if (flat.w == 1 && flat.h == 1) break;
+        flat = coarser_level(flat);
     }
 }
 
@@ -123,7 +154,7 @@ HeightMap Heightfield::box_downsampled(int f) const {
 
 size_t Heightfield::memory_bytes() const {
     size_t bytes = m_heights.size() * sizeof(float);
-    for (const Level &l : m_levels) bytes += l.minmax.size() * sizeof(float);
+    for (const Level &l : m_levels) bytes += l.quads.size() * sizeof(float);
     return bytes;
 }
 
@@ -192,11 +223,20 @@ bool intersect_bilinear_patch(Vec3 o, Vec3 d, float h00, float h10, float h01, f
 
 bool Heightfield::intersect(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit &hit, int64_t ox,
                             int64_t oy) const {
-    return traverse<false>(o, d, tmin, tmax, &hit, ox, oy);
+    return traverse<false, true>(o, d, tmin, tmax, &hit, ox, oy);
 }
 
 bool Heightfield::occluded(Vec3 o, Vec3 d, float tmin, float tmax, int64_t ox, int64_t oy) const {
-    return traverse<true>(o, d, tmin, tmax, nullptr, ox, oy);
+    return traverse<true, true>(o, d, tmin, tmax, nullptr, ox, oy);
+}
+
+bool Heightfield::intersect_reference(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit &hit, int64_t ox,
+                                      int64_t oy) const {
+    return traverse<false, false>(o, d, tmin, tmax, &hit, ox, oy);
+}
+
+bool Heightfield::occluded_reference(Vec3 o, Vec3 d, float tmin, float tmax, int64_t ox, int64_t oy) const {
+    return traverse<true, false>(o, d, tmin, tmax, nullptr, ox, oy);
 }
 
 namespace {
@@ -214,6 +254,11 @@ struct NodeStack {
     void push(const PyramidNode &n) { nodes[size++] = n; }
     PyramidNode pop() { return nodes[--size]; }
     bool empty() const { return size == 0; }
+};
+
+/// A 2 x 2 block of nodes of `level` from (i0, j0); bit c (x + 2 y) of `exist`: node c exists.
+struct NodeBlock {
+    int level, i0, j0, exist;
 };
 
 /// Position of the 2D DDA over the W x H tile grid.
@@ -239,6 +284,19 @@ struct CellPatch {
 /// Relative widening of the node intervals, which only cull (the leaves clip exactly):
 /// covers the float round-off of the slab values (~2e-7).
 constexpr float kNodePad = 1e-6f;
+
+/// std::nextafter(x, +infinity), by the bits (no libm call in the leaf test).
+inline float next_up(float x) {
+    if (!(x < Infinity)) return x;  // +inf, NaN
+    if (x == 0.f) return std::numeric_limits<float>::denorm_min();
+    uint32_t b;
+    std::memcpy(&b, &x, sizeof b);
+    b = x > 0.f ? b + 1 : b - 1;
+    std::memcpy(&x, &b, sizeof b);
+    return x;
+}
+/// std::nextafter(x, -infinity).
+inline float next_down(float x) { return -next_up(-x); }
 
 inline int64_t floor_div(int64_t a, int64_t b) {
     int64_t q = a / b;
@@ -349,10 +407,10 @@ struct Heightfield::Traversal {
     }
 
     /// Starts below the tile's root: at the lowest level whose nodes are wider than the
-    /// segment's footprint in this tile, so at most 2 x 2 nodes cover it (a short segment
-    /// through a shell tetrahedron skips most of the pyramid). The footprint is padded;
-    /// extra nodes are only culled.
-    void push_start_nodes(const TileSegment &s, NodeStack &stack) const {
+    /// segment's footprint in this tile, so one 2 x 2 block of nodes covers it (a short
+    /// segment through a shell tetrahedron skips most of the pyramid). The footprint is
+    /// padded; extra nodes are only culled.
+    NodeBlock start_block(const TileSegment &s) const {
         const int top = int(f.m_levels.size()) - 1;
         const float xa = o.x + s.seg0 * d.x - s.tile_x, xb = o.x + s.seg1 * d.x - s.tile_x;
         const float ya = o.y + s.seg0 * d.y - s.tile_y, yb = o.y + s.seg1 * d.y - s.tile_y;
@@ -364,18 +422,19 @@ struct Heightfield::Traversal {
             k = 0;
             while (k < top && float(1 << k) < extent + 1.f) ++k;
         }
-        if (k >= top) {
-            stack.push({top, 0, 0});
-            return;
-        }
+        if (k >= top) return {top, 0, 0, 1};
         const Level &L = f.m_levels[k];
         const int i0 = std::min(int(bx0) >> k, L.w - 1), i1 = std::min(int(bx1) >> k, L.w - 1);
         const int j0 = std::min(int(by0) >> k, L.h - 1), j1 = std::min(int(by1) >> k, L.h - 1);
-        // At most 2 x 2 nodes, pushed back to front like children.
+        return {k, i0, j0, (i1 > i0 ? 0xF : 0x5) & (j1 > j0 ? 0xF : 0x3)};
+    }
+
+    /// The nodes of `b` whose bit is set in `mask`, pushed back to front so that the one the
+    /// ray enters first is popped first.
+    void push_block(const NodeBlock &b, int mask, NodeStack &stack) const {
         for (int q = 3; q >= 0; --q) {
             const int c = q ^ child_mask;
-            const int ni = i0 + (c & 1), nj = j0 + (c >> 1);
-            if (ni <= i1 && nj <= j1) stack.push({k, ni, nj});
+            if (mask >> c & 1) stack.push({b.level, b.i0 + (c & 1), b.j0 + (c >> 1)});
         }
     }
 
@@ -383,7 +442,7 @@ struct Heightfield::Traversal {
     /// padded. (x0, y0): the box's lower corner.
     bool node_overlaps(const PyramidNode &nd, const TileSegment &s, float &x0, float &y0) const {
         const Level &L = f.m_levels[nd.level];
-        const float *mm = &L.minmax[(size_t(nd.j) * L.w + nd.i) * 2];
+        const float mm[2] = {L.min_at(nd.i, nd.j), L.max_at(nd.i, nd.j)};
         const int span = 1 << nd.level;
         x0 = s.tile_x + float(nd.i * span);
         y0 = s.tile_y + float(nd.j * span);
@@ -429,8 +488,8 @@ struct Heightfield::Traversal {
         clip_to_unit(cell.lx, d.x, c0, c1);
         clip_to_unit(cell.ly, d.y, c0, c1);
         if (!(c1 >= c0)) return false;
-        const float s0 = std::max(std::nextafter(float(c0), -Infinity), tmin);
-        const float s1 = std::min(std::nextafter(float(c1), Infinity), tmax);
+        const float s0 = std::max(next_down(float(c0)), tmin);
+        const float s1 = std::min(next_up(float(c1)), tmax);
         if (!patch_root(cell.lx, cell.ly, o.z, d, cell.h00, cell.h10, cell.h01, cell.h11, s0, s1, th)) return false;
         return th > tmin && !(th > tmax);
     }
@@ -446,19 +505,112 @@ struct Heightfield::Traversal {
         hit.h = bilinear_patch(cell.h00, cell.h10, cell.h01, cell.h11, a, b, hit.dhdx, hit.dhdy);
     }
 
-    /// The children of `nd` that exist, pushed back to front so that the one the ray
-    /// enters first is popped first.
-    void push_children(const PyramidNode &nd, NodeStack &stack) const {
+    /// The 2 x 2 block of `nd`'s children (bits of those that exist).
+    NodeBlock children(const PyramidNode &nd) const {
         const Level &C = f.m_levels[nd.level - 1];
-        for (int k = 3; k >= 0; --k) {
-            const int c = k ^ child_mask;
-            const int ci = 2 * nd.i + (c & 1), cj = 2 * nd.j + (c >> 1);
-            if (ci < C.w && cj < C.h) stack.push({nd.level - 1, ci, cj});
+        const int ci = 2 * nd.i, cj = 2 * nd.j;
+        return {nd.level - 1, ci, cj, (ci + 1 < C.w ? 0xF : 0x5) & (cj + 1 < C.h ? 0xF : 0x3)};
+    }
+
+    /// Bit c set: node c (x + 2 y) of block `b` exists and node_overlaps holds for it; mn, mx:
+    /// the four nodes' min and max heights. The SSE path computes node_overlaps' formula for
+    /// the four nodes at once with the same float operations in the same order
+    /// (std::max(a, b) is _mm_max_ps(b, a), NaNs and signed zeros included), so both paths
+    /// cull the same nodes.
+    int block_overlap(const NodeBlock &b, const float *mn, const float *mx, const TileSegment &s) const {
+#if defined(__SSE2__)
+        const int span = 1 << b.level, ci = b.i0, cj = b.j0;
+        // The nodes' x planes: column 0 spans [ci, ci + 1) span, column 1 the next, both
+        // clamped to the tile as in node_overlaps; likewise y.
+        const __m128 xs = _mm_setr_ps(s.tile_x + float(ci * span), s.tile_x + float(std::min((ci + 1) * span, f.m_w)),
+                                      s.tile_x + float((ci + 1) * span), s.tile_x + float(std::min((ci + 2) * span, f.m_w)));
+        const __m128 ys = _mm_setr_ps(s.tile_y + float(cj * span), s.tile_y + float(std::min((cj + 1) * span, f.m_h)),
+                                      s.tile_y + float((cj + 1) * span), s.tile_y + float(std::min((cj + 2) * span, f.m_h)));
+        const __m128 tx = _mm_mul_ps(_mm_sub_ps(xs, _mm_set1_ps(o.x)), _mm_set1_ps(inv[0]));
+        const __m128 ty = _mm_mul_ps(_mm_sub_ps(ys, _mm_set1_ps(o.y)), _mm_set1_ps(inv[1]));
+        const __m128 ta0 = _mm_shuffle_ps(tx, tx, _MM_SHUFFLE(2, 0, 2, 0)), tb0 = _mm_shuffle_ps(tx, tx, _MM_SHUFFLE(3, 1, 3, 1));
+        const __m128 tc0 = _mm_shuffle_ps(ty, ty, _MM_SHUFFLE(2, 2, 0, 0)), td0 = _mm_shuffle_ps(ty, ty, _MM_SHUFFLE(3, 3, 1, 1));
+        const __m128 oz = _mm_set1_ps(o.z), iz = _mm_set1_ps(inv[2]);
+        const __m128 te0 = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(mn), oz), iz);
+        const __m128 tf0 = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(mx), oz), iz);
+        // if (a > b) swap(a, b): a' = min(b, a), b' = max(a, b) in _mm order.
+        const __m128 ta = _mm_min_ps(tb0, ta0), tb = _mm_max_ps(ta0, tb0);
+        const __m128 tc = _mm_min_ps(td0, tc0), td = _mm_max_ps(tc0, td0);
+        const __m128 te = _mm_min_ps(tf0, te0), tf = _mm_max_ps(te0, tf0);
+        const __m128 xy_near = _mm_max_ps(tc, ta), xy_far = _mm_min_ps(td, tb);
+        const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
+        const __m128 lo = _mm_and_ps(_mm_max_ps(_mm_set1_ps(s.seg0), _mm_max_ps(te, xy_near)), abs_mask);
+        const __m128 hi = _mm_and_ps(_mm_min_ps(_mm_set1_ps(s.seg1), _mm_min_ps(tf, xy_far)), abs_mask);
+        const __m128 pad = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(kNodePad), _mm_max_ps(hi, lo)), _mm_set1_ps(1e-30f));
+        const __m128 t_near = _mm_max_ps(_mm_max_ps(_mm_set1_ps(s.seg0 - s.pad), _mm_sub_ps(te, pad)), _mm_sub_ps(xy_near, pad));
+        const __m128 t_far = _mm_min_ps(_mm_min_ps(_mm_set1_ps(s.seg1 + s.pad), _mm_add_ps(tf, pad)), _mm_add_ps(xy_far, pad));
+        const __m128 pass = _mm_and_ps(_mm_cmple_ps(t_near, t_far), _mm_and_ps(_mm_cmpnlt_ps(t_far, _mm_set1_ps(tmin)),
+                                                                                _mm_cmpngt_ps(t_near, _mm_set1_ps(tmax))));
+        return _mm_movemask_ps(pass) & b.exist;
+#else
+        int mask = 0;
+        float x0, y0;
+        for (int c = 0; c < 4; ++c)
+            if ((b.exist >> c & 1) && node_overlaps({b.level, b.i0 + (c & 1), b.j0 + (c >> 1)}, s, x0, y0)) mask |= 1 << c;
+        return mask;
+#endif
+    }
+
+    /// block_overlap of the start block (its heights gathered; nodes that do not exist read as 0).
+    int start_block_overlap(const NodeBlock &b, const TileSegment &s) const {
+        const Level &L = f.m_levels[b.level];
+        alignas(16) float mn[4] = {0.f, 0.f, 0.f, 0.f}, mx[4] = {0.f, 0.f, 0.f, 0.f};
+        for (int c = 0; c < 4; ++c)
+            if (b.exist >> c & 1) {
+                mn[c] = L.min_at(b.i0 + (c & 1), b.j0 + (c >> 1));
+                mx[c] = L.max_at(b.i0 + (c & 1), b.j0 + (c >> 1));
+            }
+        return block_overlap(b, mn, mx, s);
+    }
+
+    /// block_overlap of `nd`'s children (their heights are one 2 x 2 block of the level below).
+    int children_overlap(const PyramidNode &nd, const TileSegment &s) const {
+        const float *q = f.m_levels[nd.level - 1].quad(nd.i, nd.j);
+        return block_overlap(children(nd), q, q + 4, s);
+    }
+
+    /// The first hit in the tile segment `s`. Reference: a node is tested when popped and all
+    /// its children are pushed. Simd: the start block is tested at once, and below it a
+    /// node's children are tested together when it is popped; only those that pass are
+    /// pushed. Both visit the same leaves in the same order.
+    template <bool AnyHit, bool Simd>
+    bool trace_tile(const TileSegment &s, HeightfieldHit *hit) const {
+        NodeStack stack;
+        const NodeBlock start = start_block(s);
+        push_block(start, Simd ? start_block_overlap(start, s) : start.exist, stack);
+        float x0, y0;
+        while (!stack.empty()) {
+            const PyramidNode nd = stack.pop();
+            if constexpr (Simd) {
+                if (nd.level > 0) {
+                    push_block(children(nd), children_overlap(nd, s), stack);
+                    continue;
+                }
+                x0 = s.tile_x + float(nd.i);
+                y0 = s.tile_y + float(nd.j);
+            } else {
+                if (!node_overlaps(nd, s, x0, y0)) continue;
+                if (nd.level > 0) {
+                    push_block(children(nd), children(nd).exist, stack);
+                    continue;
+                }
+            }
+            CellPatch cell;
+            float th;
+            if (!leaf_root(nd, x0, y0, cell, th)) continue;
+            if constexpr (!AnyHit) record_hit(cell, x0, y0, th, *hit);
+            return true;
         }
+        return false;
     }
 };
 
-template <bool AnyHit>
+template <bool AnyHit, bool Simd>
 bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit *hit, int64_t ox,
                            int64_t oy) const {
     if (m_levels.empty() || !(tmax > tmin)) return false;
@@ -470,22 +622,7 @@ bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHi
     for (int guard = 0; guard < (1 << 22); ++guard) {
         const double t_tile1 = std::min(double(tr.tmax), std::min(walk.tnx, walk.tny));
         const TileSegment seg = tr.tile_segment(walk, t_tile0, t_tile1);
-        NodeStack stack;
-        tr.push_start_nodes(seg, stack);
-        while (!stack.empty()) {
-            const PyramidNode nd = stack.pop();
-            float x0, y0;
-            if (!tr.node_overlaps(nd, seg, x0, y0)) continue;
-            if (nd.level > 0) {
-                tr.push_children(nd, stack);
-                continue;
-            }
-            CellPatch cell;
-            float th;
-            if (!tr.leaf_root(nd, x0, y0, cell, th)) continue;
-            if constexpr (!AnyHit) tr.record_hit(cell, x0, y0, th, *hit);
-            return true;
-        }
+        if (tr.trace_tile<AnyHit, Simd>(seg, hit)) return true;
         if (t_tile1 >= double(tr.tmax)) break;
         t_tile0 = t_tile1;
         tr.step_tile(walk);
@@ -493,7 +630,9 @@ bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHi
     return false;
 }
 
-template bool Heightfield::traverse<false>(Vec3, Vec3, float, float, HeightfieldHit *, int64_t, int64_t) const;
-template bool Heightfield::traverse<true>(Vec3, Vec3, float, float, HeightfieldHit *, int64_t, int64_t) const;
+template bool Heightfield::traverse<false, true>(Vec3, Vec3, float, float, HeightfieldHit *, int64_t, int64_t) const;
+template bool Heightfield::traverse<true, true>(Vec3, Vec3, float, float, HeightfieldHit *, int64_t, int64_t) const;
+template bool Heightfield::traverse<false, false>(Vec3, Vec3, float, float, HeightfieldHit *, int64_t, int64_t) const;
+template bool Heightfield::traverse<true, false>(Vec3, Vec3, float, float, HeightfieldHit *, int64_t, int64_t) const;
 
 }  // namespace meso

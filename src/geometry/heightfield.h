@@ -1,6 +1,9 @@
 // The heightfield intersector: a periodic, piecewise-bilinear heightfield in cell space
 // (see heightmap.h) with a min/max height pyramid (maximum mip-maps, Tevs et al. 2008),
 // traversed top-down front-to-back, with an exact ray / bilinear-patch test at the leaves.
+// The pyramid is stored in 2 x 2 blocks (a node's four children's mins, then maxes), and the
+// traversal tests a node's four children at once with SSE, with the same float operations as
+// the scalar node-at-a-time reference (intersect_reference), so both give bitwise the same hits.
 //
 // This is the one heightfield tracer of meso: shell-mapped displacement calls it with the
 // ray mapped into cell space through a tetrahedron, and the prefiltering precomputation
@@ -49,6 +52,12 @@ public:
                    int64_t offset_x = 0, int64_t offset_y = 0) const;
     /// Any hit with t in (tmin, tmax).
     bool occluded(Vec3 o, Vec3 d, float tmin, float tmax, int64_t offset_x = 0, int64_t offset_y = 0) const;
+    /// intersect / occluded with the scalar node-at-a-time traversal: the reference that the
+    /// SIMD traversal (a node's four children tested at once) must match bit for bit. For tests.
+    bool intersect_reference(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit &hit, int64_t offset_x = 0,
+                             int64_t offset_y = 0) const;
+    bool occluded_reference(Vec3 o, Vec3 d, float tmin, float tmax, int64_t offset_x = 0,
+                            int64_t offset_y = 0) const;
 
     /// The heights box-filtered by `factor` (each output vertex is the mean of a factor x
     /// factor block of vertices): the stand-in for downsampled LoD levels until the
@@ -61,8 +70,16 @@ public:
 
 private:
     struct Level {
-        int w = 0, h = 0;             ///< nodes in x and y
-        std::vector<float> minmax;    ///< 2 floats per node: min, max height of its cells
+        int w = 0, h = 0;  ///< nodes in x and y
+        int qw = 0;        ///< 2 x 2 blocks of nodes in x, (w + 1) / 2
+        /// 8 floats per 2 x 2 block of nodes (the children of one node of the level above):
+        /// the four nodes' min heights, then their four max heights, node (2 qi + a, 2 qj + b)
+        /// at index a + 2 b (nodes past an odd size hold 0). One SSE load gives a node's four
+        /// children's mins, the next their maxes.
+        std::vector<float> quads;
+        const float *quad(int qi, int qj) const { return &quads[(size_t(qj) * qw + size_t(qi)) * 8]; }
+        float min_at(int i, int j) const { return quad(i >> 1, j >> 1)[(i & 1) | (j & 1) << 1]; }
+        float max_at(int i, int j) const { return quad(i >> 1, j >> 1)[4 + ((i & 1) | (j & 1) << 1)]; }
     };
     int m_w = 0, m_h = 0;
     float m_min = 0.f, m_max = 0.f;
@@ -71,7 +88,7 @@ private:
 
     /// The ray of one traverse() call and its steps (heightfield.cpp).
     struct Traversal;
-    template <bool AnyHit>
+    template <bool AnyHit, bool Simd>
     bool traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit *hit, int64_t ox, int64_t oy) const;
 };
 

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <emmintrin.h>
 #include <fmt/format.h>
 #include "core/error.h"
 #include "sampling/warp.h"
@@ -90,7 +91,39 @@ void occluded_cb(const RTCOccludedFunctionNArguments *args) {
     }
 }
 
+/// Tetrahedron k's world -> cell map applied to world point w (in double).
+template <class Tet>
+void map_to_cell(const Tet &T, const double w[3], double c[3]) {
+    const double r[3] = {w[0] - T.w0[0], w[1] - T.w0[1], w[2] - T.w0[2]};
+    for (int i = 0; i < 3; ++i) c[i] = T.t0[i] + T.A[3 * i] * r[0] + T.A[3 * i + 1] * r[1] + T.A[3 * i + 2] * r[2];
+}
+
 }  // namespace
+
+/// The Prism::same_map bits: tetrahedra k and k' share a map when k's map takes every vertex
+/// of k' to its cell-space position within 8 float ulps of the prism's cell-space extent
+/// (the round-off of one map; affine maps agree inside k' if they agree at its vertices).
+uint8_t ShellShape::shared_maps(const Prism &P, const double wv[6][3], const double tv[6][3]) {
+    static const int kTets[3][4] = {{0, 1, 2, 3}, {1, 2, 3, 4}, {2, 3, 4, 5}};
+    double extent = 1.0;
+    for (int v = 0; v < 6; ++v)
+        for (int c = 0; c < 3; ++c) extent = std::max(extent, std::abs(tv[v][c]));
+    const double tol = 8.0 * 0x1p-24 * extent;
+    uint8_t bits = 0;
+    for (int k = 0; k < 3; ++k)
+        for (int k2 = k + 1; k2 < 3; ++k2) {
+            if (!(P.valid >> k & 1) || !(P.valid >> k2 & 1)) continue;
+            bool same = true;
+            for (int q = 0; q < 4 && same; ++q) {
+                double c[3];
+                const int v = kTets[k2][q];
+                map_to_cell(P.tet[k], wv[v], c);
+                for (int i = 0; i < 3; ++i) same = same && std::abs(c[i] - tv[v][i]) <= tol;
+            }
+            if (same) bits |= uint8_t(1u << (k + k2 - 1));
+        }
+    return bits;
+}
 
 ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string name)
     : m_disp(std::move(disp)), m_base(base), m_name(std::move(name)) {
@@ -160,7 +193,10 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
             if (!invert3(E, Binv, det) || std::abs(det) < 1e-9 * max_edge * max_edge * max_edge) continue;
             Tet &tt = P.tet[k];
             for (int c = 0; c < 3; ++c) tt.w0[c] = float(W[0][c]), tt.t0[c] = float(T[0][c]);
-            for (int i = 0; i < 9; ++i) tt.B[i] = float(Binv[i]);
+            for (int c = 0; c < 3; ++c) {
+                tt.N[c][0] = float(-(Binv[c] + Binv[3 + c] + Binv[6 + c]));
+                for (int k = 0; k < 3; ++k) tt.N[c][k + 1] = float(Binv[3 * k + c]);
+            }
             for (int r = 0; r < 3; ++r)
                 for (int c = 0; c < 3; ++c)
                     tt.A[r * 3 + c] = float(TM[r * 3 + 0] * Binv[0 * 3 + c] + TM[r * 3 + 1] * Binv[1 * 3 + c] +
@@ -168,6 +204,7 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
             P.valid |= uint8_t(1u << k);
         }
         if (!P.valid) continue;
+        P.same_map = shared_maps(P, wv, tv);
         m_prisms.push_back(P);
         m_prism_tri.push_back(uint32_t(t));
         areas.push_back(area);
@@ -195,32 +232,36 @@ void ShellShape::prism_bounds(uint32_t prism, float lo[3], float hi[3]) const {
 }
 
 bool ShellShape::clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1) {
-    // Barycentric coordinates along the ray: lambda_k(t) = n_k + t s_k (k = 1..3) and
-    // lambda_0 = 1 - sum. In double: o may be far from the tetrahedron.
-    const double r[3] = {double(o.x) - T.w0[0], double(o.y) - T.w0[1], double(o.z) - T.w0[2]};
-    double n[4], s[4];
-    n[0] = 1.0, s[0] = 0.0;
-    double nmax = 1.0;
-    for (int k = 0; k < 3; ++k) {
-        const float *b = &T.B[3 * k];
-        n[k + 1] = b[0] * r[0] + b[1] * r[1] + b[2] * r[2];
-        s[k + 1] = double(b[0]) * d.x + double(b[1]) * d.y + double(b[2]) * d.z;
-        n[0] -= n[k + 1];
-        s[0] -= s[k + 1];
-        nmax = std::max(nmax, std::abs(n[k + 1]));
-    }
+    // Barycentric coordinates along the ray, lambda_k(t) = n_k + t s_k, the four at once. In
+    // float: the error of n (a few ulps of |N| |o - w0|) is of the order of the float rounding
+    // of N itself and well inside the pad below.
+    const __m128 rx = _mm_set1_ps(o.x - T.w0[0]), ry = _mm_set1_ps(o.y - T.w0[1]), rz = _mm_set1_ps(o.z - T.w0[2]);
+    const __m128 nx = _mm_loadu_ps(T.N[0]), ny = _mm_loadu_ps(T.N[1]), nz = _mm_loadu_ps(T.N[2]);
+    const __m128 n = _mm_add_ps(_mm_setr_ps(1.f, 0.f, 0.f, 0.f),
+                                _mm_add_ps(_mm_add_ps(_mm_mul_ps(nx, rx), _mm_mul_ps(ny, ry)), _mm_mul_ps(nz, rz)));
+    const __m128 s = _mm_add_ps(_mm_add_ps(_mm_mul_ps(nx, _mm_set1_ps(d.x)), _mm_mul_ps(ny, _mm_set1_ps(d.y))),
+                                _mm_mul_ps(nz, _mm_set1_ps(d.z)));
     // Pad: the tetrahedra of a shell overlap a little along shared faces, by more than the
-    // float error of B applied to a distant origin, so no ray slips between them.
-    const double eps = 1e-5 + 1e-6 * nmax;
-    double a = t0, b = t1;
-    for (int k = 0; k < 4; ++k) {
-        if (s[k] > 0.0) a = std::max(a, (-eps - n[k]) / s[k]);
-        else if (s[k] < 0.0) b = std::min(b, (-eps - n[k]) / s[k]);
-        else if (n[k] < -eps) return false;
-    }
-    if (!(a <= b)) return false;
-    t0 = float(a);
-    t1 = float(b);
+    // float error of N applied to a distant origin, so no ray slips between them.
+    __m128 an = _mm_and_ps(n, _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)));
+    an = _mm_max_ps(an, _mm_shuffle_ps(an, an, _MM_SHUFFLE(2, 3, 0, 1)));
+    an = _mm_max_ps(an, _mm_shuffle_ps(an, an, _MM_SHUFFLE(1, 0, 3, 2)));
+    const float nmax = std::max(1.f, _mm_cvtss_f32(an));
+    const __m128 eps = _mm_set1_ps(1e-5f + 1e-6f * nmax);
+    const __m128 zero = _mm_setzero_ps();
+    // A face the ray runs parallel to, outside it: no segment.
+    if (_mm_movemask_ps(_mm_and_ps(_mm_cmpeq_ps(s, zero), _mm_cmplt_ps(n, _mm_sub_ps(zero, eps))))) return false;
+    // Entering faces (s > 0) raise t0, leaving ones (s < 0) lower t1.
+    const __m128 tk = _mm_div_ps(_mm_sub_ps(_mm_sub_ps(zero, eps), n), s);
+    const __m128 enter = _mm_cmpgt_ps(s, zero), leave = _mm_cmplt_ps(s, zero);
+    __m128 a = _mm_or_ps(_mm_and_ps(enter, tk), _mm_andnot_ps(enter, _mm_set1_ps(-Infinity)));
+    __m128 b = _mm_or_ps(_mm_and_ps(leave, tk), _mm_andnot_ps(leave, _mm_set1_ps(Infinity)));
+    a = _mm_max_ps(a, _mm_shuffle_ps(a, a, _MM_SHUFFLE(2, 3, 0, 1)));
+    a = _mm_max_ps(a, _mm_shuffle_ps(a, a, _MM_SHUFFLE(1, 0, 3, 2)));
+    b = _mm_min_ps(b, _mm_shuffle_ps(b, b, _MM_SHUFFLE(2, 3, 0, 1)));
+    b = _mm_min_ps(b, _mm_shuffle_ps(b, b, _MM_SHUFFLE(1, 0, 3, 2)));
+    t0 = std::max(t0, _mm_cvtss_f32(a));
+    t1 = std::min(t1, _mm_cvtss_f32(b));
     return t0 <= t1;
 }
 
@@ -241,6 +282,16 @@ bool ShellShape::trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float 
     if (ns == 0) return false;
     for (int i = 1; i < ns; ++i)  // insertion sort of at most three segments by entry
         for (int j = i; j > 0 && seg[j].t0 < seg[j - 1].t0; --j) std::swap(seg[j], seg[j - 1]);
+    // Overlapping segments of tetrahedra with one map become one segment, traced once.
+    if (P.same_map) {
+        int m = 1;
+        for (int i = 1; i < ns; ++i) {
+            Seg &last = seg[m - 1];
+            if ((P.same_map >> (last.k + seg[i].k - 1) & 1) && seg[i].t0 <= last.t1) last.t1 = std::max(last.t1, seg[i].t1);
+            else seg[m++] = seg[i];
+        }
+        ns = m;
+    }
     bool found = false;
     float best = tfar;
     const Heightfield &hf = *m_disp.field;

@@ -16,7 +16,9 @@
 //   the prism's integer cell origin; fill_interaction rebuilds the micro-normal
 //   (inverse-transpose of the texture-to-world Jacobian applied to (-h_x, -h_y, 1)),
 //   the micro uv and dp/du, dp/dv.
-// * Memory: per prism three 24-float tetrahedra plus an integer cell origin, and the
+// * Tetrahedra of one prism that share their world -> cell map (a flat base with linear uvs)
+//   are traced as one segment (Prism::same_map); the clip runs in float SSE (four faces at once).
+// * Memory: per prism three 27-float tetrahedra plus an integer cell origin, and the
 //   heightfield (map + min/max pyramid) once, whatever the tiling.
 #pragma once
 #include <memory>
@@ -68,7 +70,10 @@ public:
 private:
     struct Tet {
         float w0[3];     ///< world vertex 0
-        float B[9];      ///< world -> barycentric (lambda_1..3 of p - w0), row-major
+        /// World -> barycentric: lambda_k(p) = [k == 0] + N[c][k] (p - w0)_c for k = 0..3,
+        /// components c = x, y, z in rows (four lambdas per SSE register); N[.][0] = -(sum
+        /// of the other three), so the lambdas sum to 1.
+        float N[3][4];
         float A[9];      ///< world -> cell space (Jacobian), row-major
         float t0[3];     ///< cell-space vertex 0 (relative to the prism's cell origin)
     };
@@ -76,7 +81,12 @@ private:
         Tet tet[3];
         int64_t ox = 0, oy = 0;  ///< integer cell origin
         uint8_t valid = 0;       ///< bit k: tetrahedron k has a volume
+        /// Bit k + k' - 1 (pairs 01, 02, 12): tetrahedra k and k' map world to cell space by
+        /// the same affine map up to float round-off (a flat base with linear uvs), so a ray
+        /// crossing both is traced in one heightfield call.
+        uint8_t same_map = 0;
     };
+    static uint8_t shared_maps(const Prism &P, const double wv[6][3], const double tv[6][3]);
     /// Clips o + t d to tetrahedron `T` within [t0, t1]; false if empty.
     static bool clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1);
     template <bool AnyHit>

@@ -152,7 +152,6 @@ void shading_sample(benchmark::State &state, const Material *m, bool with_pdf) {
     }
 }
 
-
 void print_summary(const std::map<std::string, double> &ns) {
     std::printf("\nMedian CPU ns per shading sample (ratio = prefiltered / base, same run; uv: %s)\n",
                 g_one_texel ? "one texel" : "a random texel per sample");
@@ -192,19 +191,12 @@ void register_material(const std::string &name, const Material *m) {
 }  // namespace
 
 int main(int argc, char **argv) {
-    // Defaults first; flags given on the command line come later and win.
-    std::vector<std::string> args = {argv[0], "--benchmark_repetitions=5", "--benchmark_enable_random_interleaving=true",
-                                     "--benchmark_report_aggregates_only=true", "--benchmark_min_time=0.2"};
-    for (int a = 1; a < argc; ++a) {
-        const std::string arg = argv[a];
-        if (arg == "--uv=one" || arg == "--uv=random") g_one_texel = arg == "--uv=one";
-        else args.push_back(arg);
-    }
-    std::vector<char *> argp;
-    for (std::string &s : args) argp.push_back(s.data());
-    int n = int(argp.size());
-    benchmark::Initialize(&n, argp.data());
-    if (benchmark::ReportUnrecognizedArguments(n, argp.data())) return 1;
+    const bool ok = bench::initialize(argc, argv, [](const std::string &arg) {
+        if (arg != "--uv=one" && arg != "--uv=random") return false;
+        g_one_texel = arg == "--uv=one";
+        return true;
+    });
+    if (!ok) return 1;
 
     const fs::path scratch = fs::temp_directory_path() / fmt::format("meso_microbench_{}", ::getpid());
     std::vector<std::shared_ptr<Material>> keep;
@@ -231,11 +223,5 @@ int main(int argc, char **argv) {
         std::fprintf(stderr, "meso_microbench: setup failed: %s\n", e.what());
         return 1;
     }
-    meso::bench::MedianReporter rep;
-    benchmark::RunSpecifiedBenchmarks(&rep);
-    print_summary(rep.ns);
-    benchmark::Shutdown();
-    std::error_code ec;
-    fs::remove_all(scratch, ec);
-    return 0;
+    return bench::run(print_summary, scratch);
 }
