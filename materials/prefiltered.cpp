@@ -67,7 +67,7 @@
 //   estimator string           quadrature "quadrature" (f'_low's full node sum) | "stochastic" (one node per
 //                                        evaluation where the integrator supplies u_eval; see above) |
 //                                        "stratified" (a set of estimator_nodes nodes per vertex, see below)
-//   estimator_nodes int        4         m of "stratified", 1..32
+//   estimator_nodes int        8         m of "stratified", 1..32
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -159,7 +159,7 @@ std::shared_ptr<const SvMultiLobe> svbrdf_cached(const std::shared_ptr<const Pre
 enum class Scaling { None, Single, Ir, TOnly, SOnly };
 enum class Estimator { Quadrature, Stochastic, Stratified };
 /// Nodes per set of the "stratified" estimator (measured: docs/performance.md).
-constexpr int kDefaultSetNodes = 4;
+constexpr int kDefaultSetNodes = 8;
 
 class Prefiltered final : public Material {
 public:
