@@ -66,7 +66,7 @@
 //   base     material          manifest  overrides the model's base material
 //   estimator string           quadrature "quadrature" (f'_low's full node sum) | "stochastic" (one node per
 //                                        evaluation where the integrator supplies u_eval; see above) |
-//                                        "stratified" (a set of estimator_nodes nodes per vertex, see below)
+//                                        "stratified" (a set of estimator_nodes nodes per vertex; see above)
 //   estimator_nodes int        8         m of "stratified", 1..32
 #include <cmath>
 #include <filesystem>
@@ -228,7 +228,7 @@ public:
         const MultiLobeBrdf &f = m.f->patch(l.c.uv);
         BSDFSample bs;
         const Estimator est = estimator(ctx);
-        const bool one_node = est != Estimator::Quadrature;  // weight and pdf from the base's record
+        const bool from_record = est != Estimator::Quadrature;  // weight and pdf from the base's record
         bool ok = false;
         switch (est) {
         case Estimator::Stochastic: ok = f.sample_stochastic(l.c, mo, u_lobe, u, bs); break;
@@ -246,11 +246,11 @@ public:
         // Not rotated: bs is exact at mi (weight = f'_low / pdf, or the one-node estimate / pdf_k).
         // Rotated, quadrature: one eval_pdf pass at the direction the integrator will see (after
         // the rotation's round-off), so that sample, pdf and eval agree exactly. Rotated,
-        // stochastic: the base's record, as in MultiLobeBrdf::sample_stochastic (node k's value
-        // and pdf at the direction before the rotations round it).
+        // stochastic or stratified: the base's record, as in MultiLobeBrdf::sample_stochastic
+        // (node k's value and pdf, or the set's, at the direction before the rotations round it).
         float p = bs.pdf;
         Spectrum w = bs.weight;
-        if (l.rotated && !one_node) {
+        if (l.rotated && !from_record) {
             const Spectrum e = f.eval_pdf(l.c, mo, mi, &p);
             w = Spectrum(e.r / p, e.g / p, e.b / p);
         }
