@@ -38,6 +38,8 @@
 // also inside the path tracer's MIS, which pairs exactly these pdfs). 1 base evaluation
 // instead of N, at the price of more variance per sample. eval and pdf stay exact, and so does
 // everything without u_eval (`meso material`, the χ² tests): there sample's pdf = pdf().
+// "stratified": the same, with the node-set estimator of multilobe_brdf.h (m = estimator_nodes
+// nodes drawn with u_eval, shared by eval_pdf and sample at the vertex: pdf_S and f_S of the set).
 // Cost of one shading sample (eval_pdf + sample) on a flat surface, relative to the base's
 // (build/bench/meso_microbench, docs/performance.md): "stochastic" 1.6x for a rough conductor,
 // 3x for rough plastic, 20x for a Lambertian base (one S lookup costs more than that base);
@@ -63,7 +65,9 @@
 //   tiling   float | [u, v]    1         repeats of the map over uv [0, 1] (as the displacement's tiling)
 //   base     material          manifest  overrides the model's base material
 //   estimator string           quadrature "quadrature" (f'_low's full node sum) | "stochastic" (one node per
-//                                        evaluation where the integrator supplies u_eval; see above)
+//                                        evaluation where the integrator supplies u_eval; see above) |
+//                                        "stratified" (a set of estimator_nodes nodes per vertex; see above)
+//   estimator_nodes int        8         m of "stratified", 1..32
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -138,6 +142,9 @@ std::shared_ptr<const SvMultiLobe> svbrdf_cached(const std::shared_ptr<const Pre
 // ------------------------------------------------------------------ the material
 
 enum class Scaling { None, Single, Ir, TOnly, SOnly };
+enum class Estimator { Quadrature, Stochastic, Stratified };
+/// Nodes per set of the "stratified" estimator (measured: docs/performance.md).
+constexpr int kDefaultSetNodes = 8;
 
 class Prefiltered final : public Material {
 public:
@@ -147,7 +154,8 @@ public:
         std::shared_ptr<const SvMultiLobe> f;
         const ScalingTables *tables = nullptr;  ///< null: no scaling
         bool use_T = false, use_S = false;
-        bool stochastic = false;  ///< estimator "stochastic"
+        Estimator estimator = Estimator::Quadrature;
+        int set_nodes = kDefaultSetNodes;  ///< m of "stratified"
         float tu = 1.f, tv = 1.f;
         std::string desc;
     };
@@ -180,8 +188,12 @@ public:
         const Vec3 mo = l.to_macro(ctx, wo), mi = l.to_macro(ctx, wi);
         if (!(mo.z > 0.f) || !(mi.z > 0.f)) return Spectrum(0.f);
         const MultiLobeBrdf &f = m.f->patch(l.c.uv);
-        Spectrum v = stochastic(ctx) ? f.eval_pdf_stochastic(l.c, mo, mi, double(ctx.u_eval), pdf)
-                                     : f.eval_pdf(l.c, mo, mi, pdf);
+        Spectrum v;
+        switch (estimator(ctx)) {
+        case Estimator::Stochastic: v = f.eval_pdf_stochastic(l.c, mo, mi, double(ctx.u_eval), pdf); break;
+        case Estimator::Stratified: v = f.eval_pdf_stratified(l.c, mo, mi, double(ctx.u_eval), m.set_nodes, pdf); break;
+        default: v = f.eval_pdf(l.c, mo, mi, pdf); break;
+        }
         return v.is_black() ? v : scaled(l, v, mo, mi);
     }
 
@@ -200,9 +212,17 @@ public:
         if (!(mo.z > 0.f)) return false;
         const MultiLobeBrdf &f = m.f->patch(l.c.uv);
         BSDFSample bs;
-        const bool one_node = stochastic(ctx);
-        if (!(one_node ? f.sample_stochastic(l.c, mo, u_lobe, u, bs) : f.sample(l.c, mo, u_lobe, u, bs)))
-            return false;
+        const Estimator est = estimator(ctx);
+        const bool from_record = est != Estimator::Quadrature;  // weight and pdf from the base's record
+        bool ok = false;
+        switch (est) {
+        case Estimator::Stochastic: ok = f.sample_stochastic(l.c, mo, u_lobe, u, bs); break;
+        case Estimator::Stratified:
+            ok = f.sample_stratified(l.c, mo, double(ctx.u_eval), m.set_nodes, u_lobe, u, bs);
+            break;
+        default: ok = f.sample(l.c, mo, u_lobe, u, bs); break;
+        }
+        if (!ok) return false;
         // Back to the shading frame.
         const Vec3 wi = l.rotated ? normalize(ctx.frame.to_local(l.macro.to_world(bs.wi))) : bs.wi;
         if (!(wi.z > 0.f)) return false;
@@ -211,11 +231,11 @@ public:
         // Not rotated: bs is exact at mi (weight = f'_low / pdf, or the one-node estimate / pdf_k).
         // Rotated, quadrature: one eval_pdf pass at the direction the integrator will see (after
         // the rotation's round-off), so that sample, pdf and eval agree exactly. Rotated,
-        // stochastic: the base's record, as in MultiLobeBrdf::sample_stochastic (node k's value
-        // and pdf at the direction before the rotations round it).
+        // stochastic or stratified: the base's record, as in MultiLobeBrdf::sample_stochastic
+        // (node k's value and pdf, or the set's, at the direction before the rotations round it).
         float p = bs.pdf;
         Spectrum w = bs.weight;
-        if (l.rotated && !one_node) {
+        if (l.rotated && !from_record) {
             const Spectrum e = f.eval_pdf(l.c, mo, mi, &p);
             w = Spectrum(e.r / p, e.g / p, e.b / p);
         }
@@ -230,8 +250,11 @@ public:
     }
 
 private:
-    /// Whether eval_pdf and sample use the one-node estimator at this shading point.
-    bool stochastic(const ShadingContext &ctx) const { return m.stochastic && ctx.u_eval >= 0.f; }
+    /// The estimator of eval_pdf and sample at this shading point: the exact quadrature unless the
+    /// integrator supplies u_eval.
+    Estimator estimator(const ShadingContext &ctx) const {
+        return ctx.u_eval >= 0.f ? m.estimator : Estimator::Quadrature;
+    }
 
     /// The context f'_low sees (uv = map position x) and the macro frame.
     struct Local {
@@ -315,8 +338,14 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
         c.use_T = s != Scaling::SOnly;
         c.use_S = s != Scaling::TOnly;
     }
-    const std::string estimator = p.get_choice("estimator", "quadrature", {"quadrature", "stochastic"});
-    c.stochastic = estimator == "stochastic";
+    c.estimator = p.get_enum<Estimator>("estimator", "quadrature", {{"quadrature", Estimator::Quadrature},
+                                                                     {"stochastic", Estimator::Stochastic},
+                                                                     {"stratified", Estimator::Stratified}});
+    std::string estimator = p.get_string("estimator", "quadrature");  // as written, for the description
+    if (c.estimator == Estimator::Stratified) {
+        c.set_nodes = p.get_int("estimator_nodes", kDefaultSetNodes, Range::closed(1, MultiLobeBrdf::kMaxSetNodes));
+        estimator += fmt::format(" ({} nodes)", c.set_nodes);
+    }
     if (p.has("tiling")) std::tie(c.tu, c.tv) = p.get_tiling();
     if (c.model->wrap != WrapMode::Repeat) c.tu *= 0.5f, c.tv *= 0.5f;  // the model spans the map's 2 x 2 extension
     std::shared_ptr<const Material> base;

@@ -286,7 +286,10 @@ TEST(PrefilteredStochastic, AreaLitRenderMatchesTheQuadrature) {
         RenderResult a, b;
     };
     auto two = [&](const Scene &s, uint64_t seed) { return Pair{meso::test::render_scene(s, spp, 0, seed), meso::test::render_scene(s, spp, 0, seed + 1)}; };
-    const Pair q = two(*quad, 11), st = two(*stoch, 21);
+    const Pair q = two(*quad, 11);
+    for (const char *est : {"stochastic", "stratified"}) {
+    std::unique_ptr<Scene> fresh = std::string(est) == "stochastic" ? nullptr : scene_for(est);
+    const Pair st = two(fresh ? *fresh : *stoch, 21);
     for (const RenderResult *r : {&q.a, &q.b, &st.a, &st.b}) EXPECT_EQ(r->nan_count, 0);
     const Image &img = q.a.image;
     const double n = double(img.width) * img.height;
@@ -309,15 +312,16 @@ TEST(PrefilteredStochastic, AreaLitRenderMatchesTheQuadrature) {
         stats(st, ms, vs, ps);
         const double tol = 4.0 * std::sqrt(vq + vs);
         EXPECT_GT(mq, 0.01) << "the area light reaches the plane";
-        EXPECT_LE(std::abs(ms - mq), tol) << "channel " << c;
+        EXPECT_LE(std::abs(ms - mq), tol) << est << " channel " << c;
         const double tq = 0.5 * (q.a.wall_s + q.b.wall_s), ts = 0.5 * (st.a.wall_s + st.b.wall_s);
         if (c == 1)
-            std::printf("area-lit render %dx%d, %d spp: mean quadrature %.5f ± %.5f, stochastic %.5f ± %.5f "
+            std::printf("area-lit render %dx%d, %d spp: mean quadrature %.5f ± %.5f, %s %.5f ± %.5f "
                         "(|diff| %.2e, tol %.2e); per-pixel variance %.3g vs %.3g (x%.2f); time %.3f s vs %.3f s "
                         "(x%.2f faster); efficiency (1 / (var · time)) x%.2f\n",
-                        img.width, img.height, spp, mq, std::sqrt(vq), ms, std::sqrt(vs), std::abs(ms - mq), tol, pq,
+                        img.width, img.height, spp, mq, std::sqrt(vq), est, ms, std::sqrt(vs), std::abs(ms - mq), tol, pq,
                         ps, ps / pq, tq, ts, tq / ts, (pq * tq) / (ps * ts));
     }
+    }  // estimators
 }
 
 TEST(PrefilteredStochastic, BadEstimatorNamesTheKey) {
@@ -325,12 +329,12 @@ TEST(PrefilteredStochastic, BadEstimatorNamesTheKey) {
     std::string e = error_of([&] {
         make_material(fmt::format(R"({{"type":"prefiltered","model":"{}","level":4,"estimator":"exact"}})", dir));
     });
-    EXPECT_NE(e.find("material.estimator: expected \"quadrature\" or \"stochastic\", got \"exact\""), std::string::npos)
+    EXPECT_NE(e.find("material.estimator: expected \"quadrature\", \"stochastic\" or \"stratified\", got \"exact\""), std::string::npos)
         << e;
     e = error_of([&] {
         load_scene(write_scene("bad_est1.json", lod_scene(R"({"factors": [1, 4], "model": "model", "estimator": "fast"})")), {});
     });
-    EXPECT_NE(e.find("shapes[0].lod.estimator: expected \"quadrature\" or \"stochastic\", got \"fast\""),
+    EXPECT_NE(e.find("shapes[0].lod.estimator: expected \"quadrature\", \"stochastic\" or \"stratified\", got \"fast\""),
               std::string::npos)
         << e;
     e = error_of([&] {

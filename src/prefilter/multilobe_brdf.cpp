@@ -375,6 +375,96 @@ bool MultiLobeBrdf::sample_stochastic(const ShadingContext &ctx, const Vec3 &wo,
     return true;
 }
 
+bool MultiLobeBrdf::pick_set(const Vec3 &wo, double u, int m, NodePick *picks) const {
+    if (m < 1 || m > kMaxSetNodes) throw MesoError(fmt::format("multilobe BRDF: node set size must be in 1..{}, got {}",
+                                                               kMaxSetNodes, m));
+    for (int j = 0; j < m; ++j)
+        if (!pick_node(wo, (u + double(j)) / double(m), picks[j])) return false;
+    return true;
+}
+
+namespace {
+/// Σ over the members of a node set of the base's value and pdf at one direction; each distinct
+/// node is evaluated once and counted with its multiplicity (systematic positions increase, so
+/// equal members are consecutive).
+struct SetSum {
+    double r = 0.0, g = 0.0, b = 0.0, pdf = 0.0;
+};
+}  // namespace
+
+Spectrum MultiLobeBrdf::eval_pdf_set(const ShadingContext &ctx, const NodePick *picks, int m, const Vec3 &wo,
+                                     const Vec3 &wi, float *pdf_out) const {
+    if (pdf_out) *pdf_out = 0.f;
+    if (m < 1 || !(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+    SetSum s;
+    for (int j = 0; j < m;) {
+        int same = 1;
+        while (j + same < m && picks[j + same].node == picks[j].node) ++same;
+        const NodePick &pk = picks[j];
+        j += same;
+        const Vec3 li = pk.frame.to_local(wi);
+        if (!(li.z > 0.f)) continue;  // g_k = 0 and pdf_k = 0 (reflection-only base)
+        float p = 0.f;
+        const Spectrum f = m_base->eval_pdf(ctx, pk.lo, li, &p);
+        s.r += same * double(f.r), s.g += same * double(f.g), s.b += same * double(f.b), s.pdf += same * double(p);
+    }
+    const double k = picks[0].total / m;  // Σ(ωo) / m
+    if (pdf_out) *pdf_out = float(s.pdf / m);
+    return Spectrum(float(k * s.r), float(k * s.g), float(k * s.b));
+}
+
+Spectrum MultiLobeBrdf::eval_pdf_stratified(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, double u_set,
+                                            int m, float *pdf_out) const {
+    if (pdf_out) *pdf_out = 0.f;
+    if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+    NodePick picks[kMaxSetNodes];
+    if (!pick_set(wo, u_set, m, picks)) return Spectrum(0.f);
+    return eval_pdf_set(ctx, picks, m, wo, wi, pdf_out);
+}
+
+bool MultiLobeBrdf::sample_stratified(const ShadingContext &ctx, const Vec3 &wo, double u_set, int m, float u_lobe,
+                                      Vec2 u, BSDFSample &out) const {
+    NodePick picks[kMaxSetNodes];
+    if (!(wo.z > 0.f) || !pick_set(wo, u_set, m, picks)) return false;
+    // Member j = floor(u_lobe m); the rest of u_lobe m picks the base's own lobe.
+    const double um = double(u_lobe) * m;
+    const int chosen = std::min(std::max(int(um), 0), m - 1);
+    NodePick pick = picks[chosen];
+    pick.u_rescaled = std::min(std::max(um - chosen, 0.0), 1.0);
+    Vec3 wi;
+    uint32_t flags = 0;
+    BSDFSample bs;
+    if (!sample_base_in_node(ctx, pick, u, wi, flags, &bs)) return false;
+    if (!(bs.pdf > 0.f) || !std::isfinite(bs.pdf)) return false;
+    // f_S and pdf_S at wi: the chosen node's from the base's record, the other nodes evaluated.
+    SetSum s;
+    for (int j = 0; j < m;) {
+        int same = 1;
+        while (j + same < m && picks[j + same].node == picks[j].node) ++same;
+        const NodePick &pk = picks[j];
+        j += same;
+        float p = 0.f;
+        Spectrum f(0.f);
+        if (pk.node == pick.node) {
+            p = bs.pdf;
+            f = Spectrum(bs.weight.r * bs.pdf, bs.weight.g * bs.pdf, bs.weight.b * bs.pdf);
+        } else {
+            const Vec3 li = pk.frame.to_local(wi);
+            if (!(li.z > 0.f)) continue;
+            f = m_base->eval_pdf(ctx, pk.lo, li, &p);
+        }
+        s.r += same * double(f.r), s.g += same * double(f.g), s.b += same * double(f.b), s.pdf += same * double(p);
+    }
+    if (!(s.pdf > 0.0)) return false;
+    const double k = picks[0].total / s.pdf;  // (Σ / m) Σ_j g / ((1/m) Σ_j pdf)
+    out.wi = wi;
+    out.pdf = float(s.pdf / m);
+    out.weight = Spectrum(float(k * s.r), float(k * s.g), float(k * s.b));
+    out.eta = 1.f;
+    out.flags = flags;
+    return out.pdf > 0.f && std::isfinite(out.pdf);
+}
+
 uint32_t MultiLobeBrdf::flags() const { return m_base->flags() & BSDF_Smooth & BSDF_Reflection; }
 
 Spectrum MultiLobeBrdf::albedo_hint(const ShadingContext &ctx) const { return m_base->albedo_hint(ctx); }

@@ -16,6 +16,7 @@
 //                                      16 x 16 patches, 6 lobes, 3 x 4 quadrature nodes per lobe,
 //                                      N = 15, M = 4; few paths: the tables' noise does not
 //                                      change the cost)
+//   prefiltered:<base>:stratified<m>   the same with "estimator": "stratified", estimator_nodes m
 //   the other materials (issue 22: "BSDF sample and eval per material"): rough GGX conductor (the perf scenes'), rough dielectric,
 //   blinnphong, gltf_pbr, leadr, lean, clean, toksvig, vmf (two lobes), normalmap, each at one
 //   typical setting, listed in a second table
@@ -57,6 +58,7 @@ struct Input {
 };
 
 constexpr size_t kInputs = 4096;  // a power of two
+constexpr int kSetNodes[] = {4, 8};  // "stratified" estimator_nodes measured
 bool g_one_texel = false;         // --uv=one: every input on one texel (see the header)
 
 const std::vector<Input> &inputs() {
@@ -158,8 +160,10 @@ void print_summary(const std::map<std::string, double> &ns) {
     for (const char *kind : {"shade", "vertex"}) {
         std::printf("%s: %s\n", kind,
                     std::string(kind) == "shade" ? "eval_pdf + sample + pdf(sampled)" : "eval_pdf + sample");
-        std::printf("  %-10s %10s %14s %8s %14s %8s\n", "base", "base ns", "quadrature ns", "ratio", "stochastic ns",
+        std::printf("  %-10s %10s %14s %8s %14s %8s", "base", "base ns", "quadrature ns", "ratio", "stochastic ns",
                     "ratio");
+        for (int nodes : kSetNodes) std::printf(" %13s%-2d %8s", "stratified", nodes, "ratio");
+        std::printf("\n");
         for (const Base &b : kBases) {
             auto get = [&](const std::string &n) {
                 auto it = ns.find(fmt::format("{}/{}", kind, n));
@@ -169,8 +173,13 @@ void print_summary(const std::map<std::string, double> &ns) {
                          s = get("prefiltered:" + b.name + ":stochastic");
             if (base < 0) continue;
             auto ratio = [&](double v) { return v < 0 ? std::string("-") : fmt::format("{:.2f}x", v / base); };
-            std::printf("  %-10s %10.1f %14.1f %8s %14.1f %8s\n", b.name.c_str(), base, q, ratio(q).c_str(), s,
+            std::printf("  %-10s %10.1f %14.1f %8s %14.1f %8s", b.name.c_str(), base, q, ratio(q).c_str(), s,
                         ratio(s).c_str());
+            for (int nodes : kSetNodes) {
+                const double v = get(fmt::format("prefiltered:{}:stratified{}", b.name, nodes));
+                std::printf(" %15.1f %8s", v, ratio(v).c_str());
+            }
+            std::printf("\n");
         }
     }
     std::printf("Other materials, median CPU ns per shading sample (shade / vertex)\n");
@@ -210,6 +219,10 @@ int main(int argc, char **argv) {
                 mats.push_back({fmt::format("prefiltered:{}:{}", b.name, est),
                                 material_from_json({{"type", "prefiltered"}, {"model", dir}, {"level", kFactor},
                                                     {"estimator", est}})});
+            for (int nodes : kSetNodes)
+                mats.push_back({fmt::format("prefiltered:{}:stratified{}", b.name, nodes),
+                                material_from_json({{"type", "prefiltered"}, {"model", dir}, {"level", kFactor},
+                                                    {"estimator", "stratified"}, {"estimator_nodes", nodes}})});
             for (auto &[name, m] : mats) {
                 keep.push_back(m);
                 register_material(name, m.get());
