@@ -60,6 +60,15 @@
 // are traced again, for every patch; the others keep their sums. Each task's mean divides by its
 // own line count, so unequal counts leave every estimate unbiased.
 //
+// Control variate (cv_lines > 0). Most of the numerator's noise is the first vertex's terms:
+// which micro-normal a line hits and where ωo, ωi fall in their bins (a glossy lobe reaches few
+// bins). Their unshadowed part c = f_base(ωo, ωi; m) at the first vertex (no shadow ray, no
+// further bounce, no h_low line) is cheap. Every line of sight adds g - c (g its traced terms,
+// single and ir: the difference is the shadowing and the interreflections), and `cv_lines`
+// extra lines per task, drawn like the lines of sight (ωo, ωi shift, position; own streams),
+// estimate E[c]: num = mean(g - c) + mean_cheap(c), unbiased whatever c is (both terms estimate
+// the same E[c]); its variance is Var(g - c) / n + Var(c) / K, the two independent.
+//
 // Units: both heightfields in cell space (effective_brdf.h); `low` covers the same tile with
 // W_low = W / F cells (its heights in its own cell units). The low model's material (an
 // SvMultiLobe) is evaluated in the MACRO frame; the original's base in the micro-normal frame.
@@ -89,6 +98,9 @@ struct ScalingOptions {
     uint64_t seed = 1;
     /// Stopping rule of add_round (pipeline: --target-error): 0 traces every task every round.
     double target_error = 0;
+    /// Control variate (see "Control variate" above): cheap lines per (patch, ωo bin) per round
+    /// that evaluate the first vertex's terms without shadow rays (0: no control variate).
+    int cv_lines = 0;
     /// Called with the fraction of (patch, ωo bin) tasks of the current round done (any thread,
     /// serialised by the caller's responsibility: it is called under a mutex here).
     std::function<void(double)> progress;
@@ -107,6 +119,7 @@ struct ScalingStats {
     double S_rel_se_median_outer = 0;          ///< over ωo and ωi both in the outer ring of bins (grazing)
     double T_rel_se_max = 0, T_rel_se_median = 0, T_ir_rel_se_median = 0;
     size_t tasks_traced = 0;                   ///< (patch, ωo bin) tasks traced over all rounds
+    size_t cv_lines = 0;                       ///< the control variate's cheap lines (all rounds)
     size_t estimator_bytes = 0;                ///< memory of the estimator's sums
     /// What the paper's sample counts (2500 paths per effective-BRDF estimate, §7.1) would give
     /// for the median of S with the per-line variances measured here: the noise target.
@@ -172,6 +185,10 @@ private:
     // differences (*sq) and of products of numerator and denominator differences (*x).
     std::vector<double> m_n1, m_n1sq, m_nir, m_nirsq, m_d, m_dsq, m_n1x, m_nirx;
     std::vector<uint32_t> m_count_orig, m_count_low;  // accepted lines per (patch, bo)
+    // Control variate: Σ c over the cheap lines and Σ over their pairs of squared differences
+    // (flattened as above), accepted cheap lines per (patch, bo).
+    std::vector<double> m_cv, m_cvsq;
+    std::vector<uint32_t> m_count_cv;
     double m_slope_orig = 0, m_slope_low = 0;  // max |∇h| (detail::max_slope)
     ScalingStats m_stats;
 };
