@@ -399,16 +399,19 @@ std::pair<double, double> brute_force_bin(const EffectiveBrdfEstimator &e, const
 
 }  // namespace
 
-TEST(PrefilterScalingEstimator, UnbiasedAgainstBruteForce) {
-    // Numerator (single bounce and with interreflections) and denominator of a few bin pairs,
-    // grazing ones included, after three rounds of the stopping rule (later rounds trace only
-    // some ωo bins: unequal line counts), against independent estimates of the same integrals.
+namespace {
+/// Numerator (single bounce and with interreflections) and denominator of a few bin pairs,
+/// grazing ones included, after three rounds of the stopping rule (later rounds trace only
+/// some ωo bins: unequal line counts), against independent estimates of the same integrals;
+/// with `cv_lines` > 0, with the control variate (scaling.h).
+void check_against_brute_force(int cv_lines) {
     std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", "0.05"}, {"seed", "5"}};
     HeightMap map = generate_height_map("fbm", p).height;
     auto base = make_material(R"({"type": "conductor", "material": "Al", "alpha": 0.3})");
     Level L(map, 8, base);
     const int N = 3;
     ScalingOptions o = small_options(1, N, 1600);
+    o.cv_lines = cv_lines;
     // The target: the median over ωo bins of their errors after the first round (the same
     // first round: same seed), so that about half of the bins stop.
     {
@@ -448,9 +451,13 @@ TEST(PrefilterScalingEstimator, UnbiasedAgainstBruteForce) {
     // All 18 differences together (a common bias of a few percent shows here): chi-square with
     // 18 degrees of freedom, 42.3 its 0.999 quantile. (The single and ir numerators share their
     // first vertex, so they are correlated: the sum is a little wider than chi-square.)
-    std::printf("chi-square of the differences: %.1f (%d terms)\n", chi2, dof);
+    std::printf("cv lines %d: chi-square of the differences: %.1f (%d terms)\n", cv_lines, chi2, dof);
     EXPECT_LT(chi2, 42.3);
 }
+}  // namespace
+
+TEST(PrefilterScalingEstimator, UnbiasedAgainstBruteForce) { check_against_brute_force(0); }
+TEST(PrefilterScalingEstimator, ControlVariateUnbiasedAgainstBruteForce) { check_against_brute_force(1600); }
 
 TEST(PrefilterScalingEstimator, ReportedStandardErrorMatchesTheSpreadOverSeeds) {
     // The median relative standard error of S the estimator reports against the spread of S
@@ -461,13 +468,16 @@ TEST(PrefilterScalingEstimator, ReportedStandardErrorMatchesTheSpreadOverSeeds) 
     HeightMap map = generate_height_map("fbm", p).height;
     auto base = make_material(R"({"type": "conductor", "material": "Al", "alpha": 0.3})");
     Level L(map, 8, base);
-    for (int paths : {12, 16}) {
+    // (lines of sight, control-variate lines): the control variate's two independent sums
+    // (the cheap lines' pairs at independent positions: 12 a task) add up in the reported error.
+    for (auto [paths, cv_lines] : {std::pair{12, 0}, std::pair{16, 0}, std::pair{12, 12}}) {
         const int seeds = 16, N = 3, B = N * N;
         std::vector<std::vector<double>> S(size_t(B) * B);
         std::vector<double> reported;
         for (int seed = 1; seed <= seeds; ++seed) {
             ScalingOptions o = small_options(2, N, paths);
             o.seed = uint64_t(seed);
+            o.cv_lines = cv_lines;
             ScalingEstimator est(L.orig, *base, L.low, *L.flow, o);
             est.add_round();
             ScalingTables single, ir;
@@ -486,8 +496,74 @@ TEST(PrefilterScalingEstimator, ReportedStandardErrorMatchesTheSpreadOverSeeds) 
         std::nth_element(rel.begin(), rel.begin() + long(rel.size() / 2), rel.end());
         std::nth_element(reported.begin(), reported.begin() + seeds / 2, reported.end());
         const double empirical = rel[rel.size() / 2], rep = reported[size_t(seeds / 2)];
-        std::printf("paths %d: reported median rel. std. error of S %.4f, spread over seeds %.4f\n", paths, rep, empirical);
+        std::printf("paths %d, cv lines %d: reported median rel. std. error of S %.4f, spread over seeds %.4f\n", paths,
+                    cv_lines, rep, empirical);
         EXPECT_GT(rep, 0.8 * empirical) << paths;
         EXPECT_LT(rep, (paths == 12 ? 1.25 : 1.6) * empirical) << paths;
     }
+}
+
+TEST(PrefilterScalingEstimator, ControlVariateIsUnbiased) {
+    // The control variate (scaling.h) against the plain estimator, independent seeds, on a
+    // steep glossy map (shadowing and interreflections: g - c is far from 0) with M = 2 (lines
+    // rejected outside the patch, cheap ones too). Two statistics: (1) the numerators' total over
+    // all patches, bin pairs and channels, single and ir, compared over 16 seeds each: its
+    // standard error is below 0.75% of the total, so a bias of 3% is 4 standard errors or more;
+    // (2) per (patch, bin pair), the difference over the two reported standard errors: a
+    // chi-square per degree of freedom near 1 (also tests the reported errors).
+    std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", "0.12"}, {"seed", "9"}};
+    HeightMap map = generate_height_map("fbm", p).height;
+    auto base = make_material(R"({"type": "conductor", "material": "Al", "alpha": 0.2})");
+    Level L(map, 8, base);
+    const int N = 3, B = N * N, P = 4, seeds = 16;
+    double chi2 = 0;
+    int dof = 0;
+    for (bool ir : {false, true}) {
+        std::vector<double> tot[2];
+        for (int seed = 1; seed <= seeds; ++seed) {
+            const ScalingEstimator *e[2];
+            ScalingOptions o = small_options(2, N, 192);
+            o.seed = uint64_t(seed);
+            ScalingEstimator plain(L.orig, *base, L.low, *L.flow, o);
+            o.seed = uint64_t(100 + seed);
+            o.cv_lines = 384;
+            ScalingEstimator cv(L.orig, *base, L.low, *L.flow, o);
+            e[0] = &plain, e[1] = &cv;
+            plain.add_round(), cv.add_round();
+            EXPECT_GT(cv.stats().cv_lines, size_t(0));
+            for (int k = 0; k < 2; ++k) {
+                double t = 0;
+                for (int patch = 0; patch < P; ++patch)
+                    for (int bo = 0; bo < B; ++bo)
+                        for (int bi = 0; bi < B; ++bi)
+                            for (int c = 0; c < 3; ++c) t += e[k]->bin_moments(patch, bi, bo, c, ir).num;
+                tot[k].push_back(t);
+            }
+            if (seed == 1)
+                for (int patch = 0; patch < P; ++patch)
+                    for (int bo = 0; bo < B; ++bo)
+                        for (int bi = 0; bi < B; ++bi) {
+                            const auto a = plain.bin_moments(patch, bi, bo, 1, ir), b = cv.bin_moments(patch, bi, bo, 1, ir);
+                            const double v = a.num_se * a.num_se + b.num_se * b.num_se;
+                            if (v > 0) chi2 += (a.num - b.num) * (a.num - b.num) / v, ++dof;
+                        }
+        }
+        double m[2], se2 = 0;
+        for (int k = 0; k < 2; ++k) {
+            double s1 = 0, s2 = 0;
+            for (double x : tot[k]) s1 += x, s2 += x * x;
+            m[k] = s1 / seeds;
+            se2 += std::max(0.0, s2 / seeds - m[k] * m[k]) / (seeds - 1);
+        }
+        const double se = std::sqrt(se2);
+        std::printf("%s numerator total: plain %.5f, control variate %.5f, difference %.2f%% +- %.2f%%\n", ir ? "ir" : "single",
+                    m[0], m[1], 100 * (m[1] / m[0] - 1), 100 * se / m[0]);
+        EXPECT_LT(se, 0.0075 * m[0]) << "the test could not see a 3% bias";
+        EXPECT_NEAR(m[1], m[0], 4 * se) << (ir ? "ir" : "single");
+    }
+    // 2 x 4 x 81 terms (single and ir share their lines: the sum is a little wider than
+    // chi-square); for 648 degrees of freedom, 1.2 per degree is beyond 3.5 standard deviations.
+    std::printf("chi-square per degree of freedom: %.3f (%d terms)\n", chi2 / dof, dof);
+    EXPECT_LT(chi2 / dof, 1.25);
+    EXPECT_GT(chi2 / dof, 0.75);
 }

@@ -142,6 +142,11 @@ SubcommandRegistrar reg_prefilter{
                         "f'_low nodes sampled per line on h_low (0: the full deterministic quadrature)")
              ->capture_default_str()
              ->check(CLI::Range(0, 4096));
+         app.add_option("--cv-lines", o->cv_lines,
+                        "control variate: lines per (T patch, wo bin) per round on the original without shadow rays, "
+                        "interreflections or h_low; the lines of sight then trace only the difference (0: none)")
+             ->capture_default_str()
+             ->check(CLI::Range(0, 1 << 20));
          app.add_option("--target-error", o->target_error,
                         "rounds until the median relative std. error of every S table is below this, tracing only the wo bins "
                         "above it after the first round (0: one round)")->capture_default_str();

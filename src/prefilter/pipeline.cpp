@@ -100,7 +100,8 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
     model.manifest["input"] = in.record;
     model.manifest["parameters"] = {{"scales", o.scales}, {"M", o.M}, {"N", o.N}, {"lobes", o.lobes},
                                     {"interreflections", o.interreflections}, {"paths_per_bin", o.paths},
-                                    {"low_paths_per_bin", o.low_paths}, {"low_nodes", o.low_nodes}, {"target_error", o.target_error},
+                                    {"low_paths_per_bin", o.low_paths}, {"low_nodes", o.low_nodes}, {"cv_lines", o.cv_lines},
+                                    {"target_error", o.target_error},
                                     {"max_rounds", o.max_rounds}, {"max_seconds", o.max_seconds}, {"epsilon", o.epsilon}, {"seed", o.seed},
                                     {"ndf_samples_per_cell", o.samples_per_cell},
                                     {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
@@ -159,6 +160,7 @@ void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Mate
     sopt.orig_paths = o.paths;
     sopt.low_paths = o.low_paths;
     sopt.low_nodes = o.low_nodes;
+    sopt.cv_lines = o.cv_lines;
     sopt.epsilon = o.epsilon;
     sopt.target_error = o.target_error;
     sopt.seed = hash_combine(o.seed, uint64_t(F));
@@ -192,6 +194,7 @@ nlohmann::json stats_json(const ScalingStats &s, bool ir) {
                         {"low_lines", s.low_lines},
                         {"orig_path_vertices", s.orig_vertices},
                         {"rejected_lines", s.rejected},
+                        {"cv_lines", s.cv_lines},
                         {"leaked_lines", s.leaked},
                         {"rounds", s.rounds},
                         {"core_seconds_orig", s.core_seconds_orig},

@@ -28,13 +28,14 @@ int perfect_square_root(int k) {
 }
 
 /// Per-line contribution buffers of one task: a = single-bounce (or f'_low) terms of the line,
-/// b = all bounces.
+/// b = all bounces, c = the first vertex's terms without the shadow test (the control variate).
 struct LineBuf {
-    std::vector<double> a, b;  // N² x 3
-    explicit LineBuf(int bins) : a(size_t(bins) * 3), b(size_t(bins) * 3) {}
+    std::vector<double> a, b, c;  // N² x 3
+    explicit LineBuf(int bins) : a(size_t(bins) * 3), b(size_t(bins) * 3), c(size_t(bins) * 3) {}
     void clear() {
         std::fill(a.begin(), a.end(), 0.0);
         std::fill(b.begin(), b.end(), 0.0);
+        std::fill(c.begin(), c.end(), 0.0);
     }
 };
 
@@ -69,6 +70,7 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
     if (!(opt.epsilon > 0) || !std::isfinite(opt.epsilon))
         throw MesoError(fmt::format("scaling function: epsilon = {} must be positive", opt.epsilon));
     if (opt.max_bounces < 1) throw MesoError("scaling function: max_bounces must be >= 1");
+    if (opt.cv_lines < 0) throw MesoError(fmt::format("scaling function: cv_lines = {} must be >= 0", opt.cv_lines));
     m_bins = N * N;
     m_slope_orig = max_slope(orig);
     m_slope_low = max_slope(low);
@@ -76,7 +78,11 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
     for (auto *v : {&m_n1, &m_n1sq, &m_d, &m_dsq, &m_n1x}) v->assign(n, 0.0);
     if (opt.interreflections)
         for (auto *v : {&m_nir, &m_nirsq, &m_nirx}) v->assign(n, 0.0);
-    m_stats.estimator_bytes = (opt.interreflections ? 8 : 5) * n * sizeof(double) + 2 * size_t(M) * M * m_bins * sizeof(uint32_t);
+    if (opt.cv_lines > 0)
+        for (auto *v : {&m_cv, &m_cvsq}) v->assign(n, 0.0);
+    m_count_cv.assign(size_t(M) * M * m_bins, 0);
+    m_stats.estimator_bytes = ((opt.interreflections ? 8 : 5) + (opt.cv_lines > 0 ? 2 : 0)) * n * sizeof(double) +
+                              3 * size_t(M) * M * m_bins * sizeof(uint32_t);
     m_count_orig.assign(size_t(M) * M * m_bins, 0);
     m_count_low.assign(size_t(M) * M * m_bins, 0);
 }
@@ -93,18 +99,20 @@ struct ScalingEstimator::Task {
     const int pa, pb;       ///< patch P = (pa, pb) of the M x M grid
     const int box, boy;     ///< the ωo bin (box, boy) of the N x N square
     const size_t base_idx;  ///< this task's [bi][ch] slice of the sums
+    const bool cv;          ///< the control variate (scaling.h) is on
     PCG32 rng;              ///< path continuations and f'_low node selection (lines have their own streams)
     std::vector<Vec3> wi;   ///< ωi of every bin for the current line (one random shift of the grid per line)
     std::vector<Spectrum> fl;  ///< f'_low(ωi of every bin, ωo) of the current line
     std::vector<size_t> vis;   ///< f'_low's nodes facing ωo ...
     std::vector<double> vw;    ///< ... and their weights c_k
     size_t orig_lines = 0, low_lines = 0, vertices = 0, rejected = 0, leaked = 0;
-    uint32_t acc_orig = 0, acc_low = 0;
+    uint32_t acc_orig = 0, acc_low = 0, acc_cv = 0;
+    size_t cv_lines = 0;
 
     Task(ScalingEstimator &e, size_t t, uint64_t seed)
         : est(e), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
           pa(int(t / size_t(B)) % M), pb(int(t / size_t(B)) / M), box(int(t % size_t(B)) % N),
-          boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3),
+          boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3), cv(e.m_opt.cv_lines > 0),
           rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)),
           fl(static_cast<size_t>(B)) {}
 
@@ -173,6 +181,10 @@ struct ScalingEstimator::Task {
             if (!(lwi.z > 0.f)) continue;
             const Spectrum f = est.m_base.eval(v.ctx, lwo, lwi);
             if (f.is_black()) continue;
+            if (depth == 1 && cv) {
+                double *pc = &buf.c[size_t(b) * 3];
+                for (int q = 0; q < 3; ++q) pc[q] += f[q];
+            }
             if (!unoccluded_by_slope(wi[size_t(b)], est.m_slope_orig) &&
                 est.m_orig.occluded(org, wi[size_t(b)], 0.f, Infinity, v.ox, v.oy))
                 continue;
@@ -311,6 +323,8 @@ struct ScalingEstimator::Task {
                 o[s].clear();
                 if (trace_original_line(k, Ko, o[s])) {
                     ++acc_orig;
+                    if (cv)  // g - c (scaling.h, "Control variate")
+                        for (size_t q = 0; q < size_t(B) * 3; ++q) o[s].a[q] -= o[s].c[q], o[s].b[q] -= o[s].c[q];
                     add_line(est.m_n1, o[s].a);
                     if (ir) add_line(est.m_nir, o[s].b);
                 }
@@ -337,8 +351,42 @@ struct ScalingEstimator::Task {
                          &est.m_nirsq, nullptr, paired ? &est.m_nirx : nullptr);
         }
     }
+    /// The control variate's cheap lines (scaling.h): directions and positions drawn as for
+    /// the lines of sight (own streams), the first vertex's terms without shadow rays into the
+    /// sums, with the squared differences of consecutive pairs (a rejected line counts as 0).
+    void trace_cv_lines() {
+        const int K = est.m_opt.cv_lines;
+        const PatchRegion R = patch_of(est.m_orig);
+        const size_t rej = rejected, leak = leaked;
+        LineBuf c[2] = {LineBuf(B), LineBuf(B)};
+        for (int k = 0; k < K; ++k) {
+            const int s = k & 1;
+            c[s].clear();
+            PCG32 lr(hash_combine(hash_combine(round_seed ^ 0xc0417a1eULL, uint64_t(task)), uint64_t(k)),
+                     mix_bits(round_seed ^ 0xcfULL));
+            Vec3 wo;
+            draw_directions(lr, wo);
+            Vertex v;
+            ++cv_lines;
+            if (shoot(lr, est.m_orig, R, wo, k, K, false, v)) {
+                ++acc_cv;
+                if (const Vec3 lwo = v.ctx.frame.to_local(wo); lwo.z > 0.f)
+                    for (int b = 0; b < B; ++b) {
+                        const Vec3 lwi = v.ctx.frame.to_local(wi[size_t(b)]);
+                        if (!(lwi.z > 0.f)) continue;
+                        const Spectrum f = est.m_base.eval(v.ctx, lwo, lwi);
+                        for (int q = 0; q < 3; ++q) c[s].a[size_t(b) * 3 + size_t(q)] = f[q];
+                    }
+                add_line(est.m_cv, c[s].a);
+            }
+            if (s == 1 || k == K - 1)
+                add_pair(&c[0].a, s == 1 ? &c[1].a : nullptr, nullptr, nullptr, &est.m_cvsq, nullptr, nullptr);
+        }
+        rejected = rej, leaked = leak;  // the counters report the lines of sight
+    }
     /// The task's line counts and the shared counters (under a lock: tasks run in parallel).
     void commit(double t_orig, double t_low) {
+        est.m_count_cv[task] += acc_cv;
         est.m_count_orig[task] += acc_orig;
         est.m_count_low[task] += acc_low;
         static std::mutex mu;
@@ -351,12 +399,18 @@ struct ScalingEstimator::Task {
         st.leaked += leaked;
         st.core_seconds_orig += t_orig;
         st.core_seconds_low += t_low;
+        st.cv_lines += cv_lines;
     }
 };
 
 void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
     Task t(*this, task, round_seed);
     double t_orig = 0, t_low = 0;
+    if (t.cv) {
+        const auto t0 = Clock::now();
+        t.trace_cv_lines();
+        t_orig += seconds_since(t0);
+    }
     t.trace_lines(t_orig, t_low);
     t.commit(t_orig, t_low);
 }
@@ -414,14 +468,17 @@ void ScalingEstimator::share_round(const ScalingStats &before, const std::vector
         dist::allreduce_sum(c.data(), c.size());
         a.swap(c);
     };
-    for (std::vector<double> *a : {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq, &m_n1x, &m_nirx}) share(*a, per);
+    for (std::vector<double> *a : {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq, &m_n1x, &m_nirx, &m_cv, &m_cvsq})
+        share(*a, per);
+    share(m_count_cv, 1);
     share(m_count_orig, 1);
     share(m_count_low, 1);
-    double d[7] = {double(m_stats.orig_lines - before.orig_lines), double(m_stats.low_lines - before.low_lines),
+    double d[8] = {double(m_stats.orig_lines - before.orig_lines), double(m_stats.low_lines - before.low_lines),
                    double(m_stats.orig_vertices - before.orig_vertices), double(m_stats.rejected - before.rejected),
                    double(m_stats.leaked - before.leaked), m_stats.core_seconds_orig - before.core_seconds_orig,
-                   m_stats.core_seconds_low - before.core_seconds_low};
-    dist::allreduce_sum(d, 7);
+                   m_stats.core_seconds_low - before.core_seconds_low, double(m_stats.cv_lines - before.cv_lines)};
+    dist::allreduce_sum(d, 8);
+    m_stats.cv_lines = before.cv_lines + size_t(d[7]);
     m_stats.orig_lines = before.orig_lines + size_t(d[0]);
     m_stats.low_lines = before.low_lines + size_t(d[1]);
     m_stats.orig_vertices = before.orig_vertices + size_t(d[2]);
@@ -453,6 +510,8 @@ ScalingEstimator::BinMoments ScalingEstimator::bin_moments(int patch, int bi, in
     if (no > 0) {
         b.num = (ir ? m_nir[k] : m_n1[k]) / no;
         b.num_se = std::sqrt((ir ? m_nirsq[k] : m_n1sq[k])) / no;
+        if (const double nc = m_count_cv[t]; nc > 0)
+            b.num += m_cv[k] / nc, b.num_se = std::hypot(b.num_se, std::sqrt(m_cvsq[k]) / nc);
     }
     if (nl > 0) b.den = m_d[k] / nl, b.den_se = std::sqrt(m_dsq[k]) / nl;
     return b;
@@ -463,7 +522,8 @@ double ScalingEstimator::R(int patch, int bi, int bo, int ch, bool ir) const {
     const size_t k = (t * m_bins + bi) * 3 + ch;
     const double no = m_count_orig[t], nl = m_count_low[t];
     const double eps = m_opt.epsilon * denom_mean(ch);
-    const double num = no > 0 ? (ir ? m_nir[k] : m_n1[k]) / no : 0.0;
+    const double nc = m_count_cv[t];
+    const double num = (no > 0 ? (ir ? m_nir[k] : m_n1[k]) / no : 0.0) + (nc > 0 ? m_cv[k] / nc : 0.0);
     const double den = nl > 0 ? m_d[k] / nl : 0.0;
     return (num + eps) / (den + eps);
 }
@@ -485,16 +545,17 @@ struct BinPairMoments {
 BinPairMoments bin_pair_moments(const std::vector<double> &sum, const std::vector<double> &sq,
                                 const std::vector<double> &dsum, const std::vector<double> &dsq,
                                 const std::vector<double> &cross, const std::vector<uint32_t> &count_orig,
-                                const std::vector<uint32_t> &count_low, int P, int B) {
+                                const std::vector<uint32_t> &count_low, const std::vector<double> &cv,
+                                const std::vector<double> &cvsq, const std::vector<uint32_t> &count_cv, int P, int B) {
     BinPairMoments m;
     m.BB = size_t(B) * B;
     const size_t n_all = size_t(P) * m.BB * 3;
     m.num.resize(n_all), m.den.resize(n_all), m.vnum.resize(n_all), m.vden.resize(n_all), m.cov.resize(n_all);
     tbb::parallel_for(size_t(0), size_t(P) * B, [&](size_t t) {
-        const double no = count_orig[t], nl = count_low[t];
+        const double no = count_orig[t], nl = count_low[t], nc = cv.empty() ? 0.0 : count_cv[t];
         for (size_t k = t * B * 3; k < (t + 1) * B * 3; ++k) {
-            m.num[k] = no > 0 ? sum[k] / no : 0.0;
-            m.vnum[k] = no > 0 ? sq[k] / (no * no) : 0.0;
+            m.num[k] = (no > 0 ? sum[k] / no : 0.0) + (nc > 0 ? cv[k] / nc : 0.0);
+            m.vnum[k] = (no > 0 ? sq[k] / (no * no) : 0.0) + (nc > 0 ? cvsq[k] / (nc * nc) : 0.0);
             m.den[k] = nl > 0 ? dsum[k] / nl : 0.0;
             m.vden[k] = nl > 0 ? dsq[k] / (nl * nl) : 0.0;
             m.cov[k] = no > 0 && nl > 0 ? cross[k] / (no * nl) : 0.0;
@@ -734,7 +795,8 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     // One table set: moments, rank-1 factors, tables, then the diagnostics of the fit.
     auto build = [&](bool use_ir, ScalingTables &tab, TableStats &o) {
         const BinPairMoments m = bin_pair_moments(use_ir ? m_nir : m_n1, use_ir ? m_nirsq : m_n1sq, m_d, m_dsq,
-                                                  use_ir ? m_nirx : m_n1x, m_count_orig, m_count_low, P, B);
+                                                  use_ir ? m_nirx : m_n1x, m_count_orig, m_count_low, m_cv, m_cvsq,
+                                                  m_count_cv, P, B);
         Rank1Factors f;
         f.T.assign(size_t(P) * 3, 1.0);
         f.S.assign(m.BB * 3, 1.0);
