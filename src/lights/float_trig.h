@@ -12,21 +12,6 @@
 
 namespace meso {
 
-/// atan(a) for a in [0, 1] (Abramowitz and Stegun 4.4.49: a times a polynomial of degree 8 in
-/// a^2, error 2e-8 in exact arithmetic).
-inline float atan_unit_interval(float a) {
-    const float z = a * a;
-    float p = 0.0028662257f;
-    p = p * z - 0.0161657367f;
-    p = p * z + 0.0429096138f;
-    p = p * z - 0.0752896400f;
-    p = p * z + 0.1065626393f;
-    p = p * z - 0.1420889944f;
-    p = p * z + 0.1999355085f;
-    p = p * z - 0.3333314528f;
-    return a * (p * z + 1.f);
-}
-
 /// atan2(y, x) in [-pi, pi]; 0 for (0, 0).
 inline float atan2_approx(float y, float x) {
     const float ax = std::abs(x), ay = std::abs(y);

@@ -389,7 +389,22 @@ namespace {
 /// equal members are consecutive).
 struct SetSum {
     double r = 0.0, g = 0.0, b = 0.0, pdf = 0.0;
+    /// Adds `count` members' value f and pdf p.
+    void add(int count, const Spectrum &f, float p) {
+        r += count * double(f.r), g += count * double(f.g), b += count * double(f.b), pdf += count * double(p);
+    }
 };
+
+/// The set's members (picks[0..m), equal nodes adjacent) as runs of one node: fn(pick, count)
+/// per run, so that a node drawn several times is evaluated once.
+template <class Pick, class Fn> void for_each_node_run(const Pick *picks, int m, Fn fn) {
+    for (int j = 0; j < m;) {
+        int same = 1;
+        while (j + same < m && picks[j + same].node == picks[j].node) ++same;
+        fn(picks[j], same);
+        j += same;
+    }
+}
 }  // namespace
 
 Spectrum MultiLobeBrdf::eval_pdf_set(const ShadingContext &ctx, const NodePick *picks, int m, const Vec3 &wo,
@@ -397,17 +412,13 @@ Spectrum MultiLobeBrdf::eval_pdf_set(const ShadingContext &ctx, const NodePick *
     if (pdf_out) *pdf_out = 0.f;
     if (m < 1 || !(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
     SetSum s;
-    for (int j = 0; j < m;) {
-        int same = 1;
-        while (j + same < m && picks[j + same].node == picks[j].node) ++same;
-        const NodePick &pk = picks[j];
-        j += same;
+    for_each_node_run(picks, m, [&](const NodePick &pk, int same) {
         const Vec3 li = pk.frame.to_local(wi);
-        if (!(li.z > 0.f)) continue;  // g_k = 0 and pdf_k = 0 (reflection-only base)
+        if (!(li.z > 0.f)) return;  // g_k = 0 and pdf_k = 0 (reflection-only base)
         float p = 0.f;
         const Spectrum f = m_base->eval_pdf(ctx, pk.lo, li, &p);
-        s.r += same * double(f.r), s.g += same * double(f.g), s.b += same * double(f.b), s.pdf += same * double(p);
-    }
+        s.add(same, f, p);
+    });
     const double k = picks[0].total / m;  // Σ(ωo) / m
     if (pdf_out) *pdf_out = float(s.pdf / m);
     return Spectrum(float(k * s.r), float(k * s.g), float(k * s.b));
@@ -438,11 +449,7 @@ bool MultiLobeBrdf::sample_stratified(const ShadingContext &ctx, const Vec3 &wo,
     if (!(bs.pdf > 0.f) || !std::isfinite(bs.pdf)) return false;
     // f_S and pdf_S at wi: the chosen node's from the base's record, the other nodes evaluated.
     SetSum s;
-    for (int j = 0; j < m;) {
-        int same = 1;
-        while (j + same < m && picks[j + same].node == picks[j].node) ++same;
-        const NodePick &pk = picks[j];
-        j += same;
+    for_each_node_run(picks, m, [&](const NodePick &pk, int same) {
         float p = 0.f;
         Spectrum f(0.f);
         if (pk.node == pick.node) {
@@ -450,11 +457,11 @@ bool MultiLobeBrdf::sample_stratified(const ShadingContext &ctx, const Vec3 &wo,
             f = Spectrum(bs.weight.r * bs.pdf, bs.weight.g * bs.pdf, bs.weight.b * bs.pdf);
         } else {
             const Vec3 li = pk.frame.to_local(wi);
-            if (!(li.z > 0.f)) continue;
+            if (!(li.z > 0.f)) return;
             f = m_base->eval_pdf(ctx, pk.lo, li, &p);
         }
-        s.r += same * double(f.r), s.g += same * double(f.g), s.b += same * double(f.b), s.pdf += same * double(p);
-    }
+        s.add(same, f, p);
+    });
     if (!(s.pdf > 0.0)) return false;
     const double k = picks[0].total / s.pdf;  // (Σ / m) Σ_j g / ((1/m) Σ_j pdf)
     out.wi = wi;

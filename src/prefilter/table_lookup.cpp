@@ -20,17 +20,7 @@ typedef float F4 __attribute__((vector_size(16)));
 /// atan(x) for x in [0, 1], lane by lane, without a branch or a division: Abramowitz and
 /// Stegun 4.4.49, x times a polynomial of degree 8 in x² (error 2e-8; in float 1e-7, tested
 /// against std::atan).
-inline F4 atan01(F4 x) {
-    const F4 z = x * x;
-    F4 p = z * 0.0028662257f - 0.0161657367f;
-    p = p * z + 0.0429096138f;
-    p = p * z - 0.0752896400f;
-    p = p * z + 0.1065626393f;
-    p = p * z - 0.1420889944f;
-    p = p * z + 0.1999355085f;
-    p = p * z - 0.3333314528f;
-    return x * (p * z + 1.f);
-}
+inline F4 atan01(F4 x) { return atan_unit_interval(x); }
 
 /// One direction's part of hemisphere_to_square_fast: the two ratios whose arctangents it needs.
 struct SquareMap {
