@@ -164,6 +164,36 @@ TEST(PrefilterScaling, DeterministicPerSeed) {
     EXPECT_NE(run(3), run(4));
 }
 
+// A LoD chain's levels estimated together (ScalingEstimator::add_round_group: the original's
+// lines traced once for all) get exactly the tables each level gets alone with the same seed:
+// sharing changes the cost, not the estimate. Mismatched estimators are refused.
+TEST(PrefilterScaling, LevelsTracedTogetherMatchEachLevelAlone) {
+    std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", "0.03"}};
+    HeightMap map = generate_height_map("fbm", p).height;
+    auto base = make_material(R"({"type": "conductor", "alpha": 0.3, "material": "Au"})");
+    Level L8(map, 8, base), L4(map, 4, base);
+    ScalingOptions o = small_options(2, 5, 9);
+    o.target_error = 1e-6;  // the stopping rule's second round traces the union of the active tasks
+    auto tables = [](ScalingEstimator &e) {
+        ScalingTables s, ir;
+        ScalingStats st;
+        e.finish(s, ir, st);
+        return std::make_pair(s.S.data, ir.T.data);
+    };
+    ScalingEstimator a(L8.orig, *base, L8.low, *L8.flow, o), b(L8.orig, *base, L4.low, *L4.flow, o);
+    for (int r = 0; r < 2; ++r) EXPECT_GT(ScalingEstimator::add_round_group({&a, &b}), 0u);
+    for (auto [low, flow] : {std::pair{&L8.low, L8.flow.get()}, std::pair{&L4.low, L4.flow.get()}}) {
+        ScalingEstimator alone(L8.orig, *base, *low, *flow, o);
+        for (int r = 0; r < 2; ++r) alone.add_round();
+        EXPECT_EQ(tables(alone), tables(low == &L8.low ? a : b));
+    }
+    EXPECT_EQ(a.stats().orig_lines, b.stats().orig_lines);
+    EXPECT_NE(tables(a), tables(b));
+    ScalingEstimator other_orig(L4.orig, *base, L4.low, *L4.flow, o);
+    EXPECT_NE(meso::test::meso_error_of([&] { ScalingEstimator::add_round_group({&a, &other_orig}); })
+                  .find("must share the original"), std::string::npos);
+}
+
 TEST(PrefilterScaling, BadInput) {
     auto base = make_material(R"({"type": "diffuse"})");
     Level L(HeightMap(32, 32, 0.f), 8, base);

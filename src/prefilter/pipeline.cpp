@@ -145,48 +145,74 @@ std::vector<PatchNdf> svndf_stage(const PipelineOptions &o, const HeightMap &map
     return ndf;
 }
 
-/// §6: rounds of the T/S estimator (eq. 12, 20-24) until the median relative standard error
-/// of every S table reaches --target-error (only the ωo bins above it are traced again,
-/// scaling.h "Stopping rule"), --max-rounds, or the level's share of --max-seconds would be
-/// exceeded by another round as long as the last; fills the level's tables and `st`.
-void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Material &base, const Heightfield &low_field,
-                   const SvMultiLobe &low_mat, double seconds_budget, PrefilteredLevel &L, ScalingStats &st) {
-    const int F = L.factor;
-    const bool ir = o.interreflections;
+/// One level before and after its T / S: h_low, the SVNDF, f'_low, the field and the estimator.
+struct LevelWork {
+    PrefilteredLevel L;
+    nlohmann::json timing;
+    size_t converged = 0;
+    double mean_it = 0;
+    std::shared_ptr<SvMultiLobe> low_mat;
+    std::unique_ptr<Heightfield> low_field;
+    std::unique_ptr<ScalingEstimator> est;
+};
+
+ScalingOptions scaling_options(const PipelineOptions &o, uint64_t seed) {
     ScalingOptions sopt;
     sopt.M = o.M;
     sopt.N = o.N;
-    sopt.interreflections = ir;
+    sopt.interreflections = o.interreflections;
     sopt.orig_paths = o.paths;
     sopt.low_paths = o.low_paths;
     sopt.low_nodes = o.low_nodes;
     sopt.cv_lines = o.cv_lines;
     sopt.epsilon = o.epsilon;
     sopt.target_error = o.target_error;
-    sopt.seed = hash_combine(o.seed, uint64_t(F));
+    sopt.seed = seed;
+    return sopt;
+}
+
+/// §6: rounds of the T/S estimator (eq. 12, 20-24) for every level at once (the original's
+/// lines shared, ScalingEstimator::add_round_group) until the median relative standard error of
+/// every level's S tables reaches --target-error (only the ωo bins above it are traced again,
+/// scaling.h "Stopping rule"), --max-rounds, or what is left of --max-seconds would be exceeded
+/// by another round as long as the last; fills each level's tables, its stats into `st`.
+void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Material &base,
+                   std::vector<LevelWork> &levels, double seconds_budget, std::vector<ScalingStats> &st) {
+    const bool ir = o.interreflections;
+    std::string names;
+    for (const LevelWork &w : levels) names += fmt::format("{}x{}", names.empty() ? "" : ",", w.L.factor);
+    ScalingOptions sopt = scaling_options(o, hash_combine(o.seed, uint64_t(levels.front().L.factor)));
     Progress progress(!o.quiet && dist::rank() == 0, 1.0, "");
     const auto t_round = std::make_shared<Clock::time_point>(Clock::now());
     int round = 0;
-    sopt.progress = [&](double frac) {
-        progress.update(frac, since(*t_round), fmt::format("x{} T/S round {}", F, round + 1));
-    };
-    ScalingEstimator est(orig, base, low_field, low_mat, sopt);
+    std::vector<ScalingEstimator *> group;
+    for (LevelWork &w : levels) {
+        w.est = std::make_unique<ScalingEstimator>(orig, base, *w.low_field, *w.low_mat, sopt);
+        group.push_back(w.est.get());
+    }
+    group.front()->set_progress([&](double frac) {
+        progress.update(frac, since(*t_round), fmt::format("{} T/S round {}", names, round + 1));
+    });
     const auto t0 = Clock::now();
     double se = 0, last = 0;
     for (round = 0; round < std::max(1, o.max_rounds); ++round) {
         if (round > 0 && seconds_budget > 0 && since(t0) + last > seconds_budget) break;
         *t_round = Clock::now();
-        const size_t traced = est.add_round();
+        const size_t traced = ScalingEstimator::add_round_group(group);
         last = since(*t_round);
         progress.finish(last);
         if (traced == 0) break;
-        se = est.current_S_rel_se();
+        se = 0;
+        for (const ScalingEstimator *e : group) se = std::max(se, e->current_S_rel_se());
         if (dist::rank() == 0)
-            std::fprintf(stderr, "  x%d: round %d: %zu tasks, median relative std. error of S%s %.4f (%.1f s)\n", F,
-                         round + 1, traced, ir ? " (single and ir, the larger)" : "", se, since(t0));
+            std::fprintf(stderr, "  %s: round %d: %zu tasks, median relative std. error of S%s %.4f (%.1f s)\n",
+                         names.c_str(), round + 1, traced,
+                         ir ? " (single and ir, the larger; the worst level)" : " (the worst level)", se, since(t0));
         if (!(o.target_error > 0) || se <= o.target_error) break;
     }
-    est.finish(L.single, L.ir, st);
+    group.front()->set_progress(nullptr);
+    st.assign(levels.size(), ScalingStats{});
+    for (size_t i = 0; i < levels.size(); ++i) levels[i].est->finish(levels[i].L.single, levels[i].L.ir, st[i]);
 }
 
 nlohmann::json stats_json(const ScalingStats &s, bool ir) {
@@ -224,48 +250,49 @@ nlohmann::json stats_json(const ScalingStats &s, bool ir) {
     return j;
 }
 
-/// One level (factor F): h_low, the SVNDF, f'_low (eq. 11) and T / S, with its manifest stats.
-PrefilteredLevel build_level(const PipelineOptions &o, int F, const Inputs &in, const OriginalFields &orig,
-                             const QuadratureOptions &quadrature, double seconds_budget) {
-    const bool ir = o.interreflections;
-    const auto t_level = Clock::now();
-    PrefilteredLevel L;
+/// One level's h_low, SVNDF and f'_low (factor F), before its T / S.
+LevelWork prepare_level(const PipelineOptions &o, int F, const Inputs &in, const OriginalFields &orig,
+                        const QuadratureOptions &quadrature) {
+    LevelWork w;
+    PrefilteredLevel &L = w.L;
     L.factor = F;
-    nlohmann::json timing;
-    L.h_low = least_squares_stage(in.map, F, timing);
-    L.ndf = svndf_stage(o, in.map, orig.map_units, F, timing);
-    size_t converged = 0;
-    double mean_it = 0;
-    for (const auto &p : L.ndf) converged += p.converged, mean_it += p.iterations;
+    L.h_low = least_squares_stage(in.map, F, w.timing);
+    L.ndf = svndf_stage(o, in.map, orig.map_units, F, w.timing);
+    for (const auto &p : L.ndf) w.converged += p.converged, w.mean_it += p.iterations;
+    w.mean_it /= double(std::max<size_t>(1, L.ndf.size()));
     if (dist::rank() == 0) std::fprintf(stderr, "  x%d: h_low %dx%d (%.2f s), SVNDF %zu patches (%.2f s, %.0f EM iterations on average)\n", F,
-                 L.h_low.width, L.h_low.height, timing["least_squares_s"].get<double>(), L.ndf.size(),
-                 timing["svndf_fit_s"].get<double>(), mean_it / double(L.ndf.size()));
-    auto t0 = Clock::now();
-    auto low_mat = std::make_shared<SvMultiLobe>(in.base, L.ndf, L.h_low.width, L.h_low.height, quadrature);
-    timing["multilobe_build_s"] = since(t0);
-    const Heightfield low_field(L.h_low, float(o.height_scale * double(L.h_low.width) / o.tile_size), 0.f);
-    t0 = Clock::now();
-    ScalingStats st;
-    scaling_stage(o, orig.cells, *in.base, low_field, *low_mat,
-                  seconds_budget > 0 ? std::max(1e-3, seconds_budget - since(t_level)) : 0.0, L, st);
-    timing["scaling_s"] = since(t0);
+                 L.h_low.width, L.h_low.height, w.timing["least_squares_s"].get<double>(), L.ndf.size(),
+                 w.timing["svndf_fit_s"].get<double>(), w.mean_it);
+    const auto t0 = Clock::now();
+    w.low_mat = std::make_shared<SvMultiLobe>(in.base, L.ndf, L.h_low.width, L.h_low.height, quadrature);
+    w.timing["multilobe_build_s"] = since(t0);
+    w.low_field = std::make_unique<Heightfield>(L.h_low, float(o.height_scale * double(L.h_low.width) / o.tile_size), 0.f);
+    return w;
+}
+
+/// A level's manifest stats after its T / S (scaling_s: its share of the levels' shared rounds).
+void finish_level(const PipelineOptions &o, LevelWork &w, const ScalingStats &st, double scaling_s, size_t shared) {
+    const bool ir = o.interreflections;
+    PrefilteredLevel &L = w.L;
+    const int F = L.factor;
+    w.timing["scaling_s"] = scaling_s;
+    w.timing["scaling_shared_levels"] = shared;
     L.stats = stats_json(st, ir);
-    L.stats["timing"] = timing;
-    L.stats["svndf"] = {{"converged_patches", converged}, {"mean_em_iterations", mean_it / double(L.ndf.size())},
-                        {"multilobe_memory_bytes", low_mat->memory_bytes()}};
+    L.stats["timing"] = w.timing;
+    L.stats["svndf"] = {{"converged_patches", w.converged}, {"mean_em_iterations", w.mean_it},
+                        {"multilobe_memory_bytes", w.low_mat->memory_bytes()}};
     L.stats["storage_bytes"] = {{"h_low", L.h_low.memory_bytes()},
                                 {"lobes", L.ndf.size() * size_t(5 * o.lobes + 1) * sizeof(float)},
                                 {"T", size_t(o.M) * o.M * 3 * sizeof(float) * (ir ? 2 : 1)},
                                 {"S", size_t(o.N) * o.N * o.N * o.N * 3 * sizeof(float) * (ir ? 2 : 1)}};
     if (dist::rank() == 0) std::fprintf(stderr,
-                 "  x%d: T/S %.1f s; S rel. std. error median %.4f (grazing ring %.4f; paper's counts: %.4f)%s; rank-1 energy %.4f, "
+                 "  x%d: S rel. std. error median %.4f (grazing ring %.4f; paper's counts: %.4f)%s; rank-1 energy %.4f, "
                  "|R - T S| / |R| = %.4f vs rank-1 SVD %.4f\n",
-                 F, timing["scaling_s"].get<double>(), ir ? st.S_ir_rel_se_median : st.S_rel_se_median,
+                 F, ir ? st.S_ir_rel_se_median : st.S_rel_se_median,
                  ir ? st.S_ir_rel_se_median_outer : st.S_rel_se_median_outer,
                  ir ? st.S_ir_rel_se_median_paper_counts : st.S_rel_se_median_paper_counts, ir ? " (ir)" : "",
                  ir ? st.rank1_energy_ir : st.rank1_energy, ir ? st.ts_rel_error_ir : st.ts_rel_error,
                  ir ? st.rank1_svd_rel_error_ir : st.rank1_svd_rel_error);
-    return L;
 }
 
 }  // namespace
@@ -282,11 +309,18 @@ PrefilteredModel build_model(const PipelineOptions &opts) {
     if (dist::rank() == 0) std::fprintf(stderr, "prefilter: %dx%d map, base %s, scales %s, M = %d, N = %d, %d lobes, interreflections %s\n",
                  map.width, map.height, in.base->to_string().c_str(), scales_text(o.scales).c_str(), o.M, o.N, o.lobes,
                  o.interreflections ? "on" : "off");
-    // --max-seconds: each level gets an equal share of what is left of the budget.
-    for (size_t i = 0; i < o.scales.size(); ++i) {
-        const double left = o.max_seconds - since(t_all);
-        const double budget = o.max_seconds > 0 ? std::max(1e-3, left / double(o.scales.size() - i)) : 0.0;
-        model.levels.push_back(build_level(o, o.scales[i], in, orig, model.quadrature, budget));
+    std::vector<LevelWork> levels;
+    for (int F : o.scales) levels.push_back(prepare_level(o, F, in, orig, model.quadrature));
+    // T / S of every level together (the original's lines shared); --max-seconds: what is left.
+    const auto t_ts = Clock::now();
+    std::vector<ScalingStats> st;
+    scaling_stage(o, orig.cells, *in.base, levels,
+                  o.max_seconds > 0 ? std::max(1e-3, o.max_seconds - since(t_all)) : 0.0, st);
+    const double ts_s = since(t_ts);
+    if (dist::rank() == 0) std::fprintf(stderr, "  T/S of %zu level(s): %.1f s\n", levels.size(), ts_s);
+    for (size_t i = 0; i < levels.size(); ++i) {
+        finish_level(o, levels[i], st[i], ts_s / double(levels.size()), levels.size());
+        model.levels.push_back(std::move(levels[i].L));
     }
     model.manifest["total_seconds"] = since(t_all);
     // Under MPI every rank holds the same tables (ScalingEstimator::add_round); rank 0 writes.

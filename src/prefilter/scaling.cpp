@@ -92,7 +92,10 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
 /// Nested in ScalingEstimator, so it adds to the estimator's sums directly (each task owns its
 /// slice of them).
 struct ScalingEstimator::Task {
-    ScalingEstimator &est;
+    ScalingEstimator &est;  ///< the original's lines (the group's first estimator)
+    /// Every level traced with it (add_round_group; est first): each gets the original's terms
+    /// and traces its own h_low lines.
+    const std::vector<ScalingEstimator *> &group;
     const size_t task;
     const uint64_t round_seed;
     const int M, N, B;      ///< T's grid, S's grid per axis, N² bins
@@ -100,26 +103,38 @@ struct ScalingEstimator::Task {
     const int box, boy;     ///< the ωo bin (box, boy) of the N x N square
     const size_t base_idx;  ///< this task's [bi][ch] slice of the sums
     const bool cv;          ///< the control variate (scaling.h) is on
-    PCG32 rng;              ///< path continuations and f'_low node selection (lines have their own streams)
+    PCG32 rng;              ///< the original's path continuations (lines and f'_low node sets have their own streams)
     std::vector<Vec3> wi;   ///< ωi of every bin for the current line (one random shift of the grid per line)
     std::vector<Spectrum> fl;  ///< f'_low(ωi of every bin, ωo) of the current line
     std::vector<size_t> vis;   ///< f'_low's nodes facing ωo ...
     std::vector<double> vw;    ///< ... and their weights c_k
-    size_t orig_lines = 0, low_lines = 0, vertices = 0, rejected = 0, leaked = 0;
-    uint32_t acc_orig = 0, acc_low = 0, acc_cv = 0;
+    size_t orig_lines = 0, vertices = 0, rejected = 0, leaked = 0;  ///< the original's lines
+    uint32_t acc_orig = 0, acc_cv = 0;
     size_t cv_lines = 0;
+    /// Per level of the group: accepted, traced, rejected and leaked h_low lines, thread time.
+    std::vector<uint32_t> acc_low;
+    std::vector<size_t> low_lines, low_rejected, low_leaked;
+    std::vector<double> t_low;
 
-    Task(ScalingEstimator &e, size_t t, uint64_t seed)
-        : est(e), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
+    Task(ScalingEstimator &e, const std::vector<ScalingEstimator *> &g, size_t t, uint64_t seed)
+        : est(e), group(g), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
           pa(int(t / size_t(B)) % M), pb(int(t / size_t(B)) / M), box(int(t % size_t(B)) % N),
           boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3), cv(e.m_opt.cv_lines > 0),
           rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)),
-          fl(static_cast<size_t>(B)) {}
+          fl(static_cast<size_t>(B)), acc_low(g.size(), 0), low_lines(g.size(), 0), low_rejected(g.size(), 0),
+          low_leaked(g.size(), 0), t_low(g.size(), 0.0) {}
 
     // Line k's own stream: its ωo, ωi shift and position in P are the same on G_orig and on
     // G_low (common random numbers: the two estimates of a bin are positively correlated).
     PCG32 line_rng(int k) const {
         return PCG32(hash_combine(hash_combine(round_seed, uint64_t(task)), uint64_t(k)), mix_bits(round_seed ^ 0x11e5ULL));
+    }
+    /// The offset of line k's f'_low node set on G_low: its own stream, the same for every level
+    /// of a group, so that a level's tables do not depend on the other levels traced with it.
+    double node_xi(int k) const {
+        PCG32 r(hash_combine(hash_combine(round_seed ^ 0x70de5ULL, uint64_t(task)), uint64_t(k)),
+                mix_bits(round_seed ^ 0x5eedULL));
+        return r.next_double();
     }
     /// ωo jittered in its bin; every ωi bin on one shifted copy of the grid (fills `wi`).
     void draw_directions(PCG32 &lr, Vec3 &wo) {
@@ -241,8 +256,10 @@ struct ScalingEstimator::Task {
     // --- the downsampled model: one bounce, f'_low in the macro frame -----------------------
     /// f'_low = Σ_k c_k base(F_k ωo, F_k ωi) (eq. 11) as an expectation over nodes: J nodes
     /// stratified in the CDF of c_k over the nodes that face ωo (the others add 0); into `fl`.
-    void sample_f_low_nodes(const MultiLobeBrdf &fl_patch, const ShadingContext &ctx, Vec3 wo, int J) {
-        const Material &base_low = est.m_low_mat.base();
+    /// xi: the stratification's offset in [0, 1), from line k's own stream (node_xi).
+    void sample_f_low_nodes(const ScalingEstimator &le, const MultiLobeBrdf &fl_patch, const ShadingContext &ctx,
+                            Vec3 wo, int J, double xi) {
+        const Material &base_low = le.m_low_mat.base();
         const auto &nodes = fl_patch.nodes();
         vis.clear();
         vw.clear();
@@ -251,7 +268,6 @@ struct ScalingEstimator::Task {
             if (const double w = fl_patch.node_weight(nodes[q], wo); w > 0) vis.push_back(q), vw.push_back(w), total += w;
         std::fill(fl.begin(), fl.end(), Spectrum(0.f));
         if (!(total > 0)) return;
-        const double xi = rng.next_double();
         size_t q = 0;
         double cum = 0;
         for (int j = 0; j < J; ++j) {
@@ -267,24 +283,32 @@ struct ScalingEstimator::Task {
             }
         }
     }
-    /// Line k of K on G_low with f'_low, single bounce (eq. 20): the denominator terms into
-    /// out.a (cleared by the caller); false when the line was rejected or leaked.
-    bool trace_low_line(int k, int K, LineBuf &out) {
-        const int J = est.m_opt.low_nodes;
+    /// Line k of K on level j's G_low (estimator le) with f'_low, single bounce (eq. 20): the
+    /// denominator terms into out.a (cleared by the caller); false when the line was rejected or
+    /// leaked (counted for level j).
+    bool trace_low_line(const ScalingEstimator &le, size_t j, int k, int K, LineBuf &out) {
+        const size_t rej = rejected, leak = leaked;
+        const bool ok = trace_low_line_impl(le, j, k, K, out);
+        low_rejected[j] += rejected - rej, low_leaked[j] += leaked - leak;
+        rejected = rej, leaked = leak;
+        return ok;
+    }
+    bool trace_low_line_impl(const ScalingEstimator &le, size_t j, int k, int K, LineBuf &out) {
+        const int J = le.m_opt.low_nodes;
         Vec3 wo;
         Vertex v;
-        if (!start_line(est.m_low, patch_of(est.m_low), k, K, true, wo, v, low_lines)) return false;
+        if (!start_line(le.m_low, patch_of(le.m_low), k, K, true, wo, v, low_lines[j])) return false;
         const Vec3 org = spawn_origin(v);
-        const MultiLobeBrdf &fl_patch = est.m_low_mat.patch(v.ctx.uv);
+        const MultiLobeBrdf &fl_patch = le.m_low_mat.patch(v.ctx.uv);
         if (J == 0)
             fl_patch.eval_batch(v.ctx, wo, wi.data(), B, fl.data());
         else
-            sample_f_low_nodes(fl_patch, v.ctx, wo, J);
+            sample_f_low_nodes(le, fl_patch, v.ctx, wo, J, node_xi(k));
         for (int b = 0; b < B; ++b) {
             const Vec3 &w = wi[size_t(b)];
             const Spectrum &f = fl[size_t(b)];
             if (f.is_black() || !(dot(v.n, w) > 0.f)) continue;  // below the h_low facet: self-shadowed
-            if (!unoccluded_by_slope(w, est.m_slope_low) && est.m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy))
+            if (!unoccluded_by_slope(w, le.m_slope_low) && le.m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy))
                 continue;
             double *p = &out.a[size_t(b) * 3];
             for (int q = 0; q < 3; ++q) p[q] += f[q];
@@ -311,11 +335,15 @@ struct ScalingEstimator::Task {
         }
     }
     /// Both fields' lines in consecutive pairs: sums, pair differences and, when both fields
-    /// trace the same number of lines (line k shares its random numbers), the cross terms.
-    void trace_lines(double &t_orig, double &t_low) {
+    /// trace the same number of lines (line k shares its random numbers), the cross terms. Each
+    /// line on the original is traced once and its terms go to every level of the group; each
+    /// level traces its own h_low line k.
+    void trace_lines(double &t_orig) {
         const int Ko = est.m_opt.orig_paths, Kl = est.m_opt.low_paths;
         const bool ir = est.m_opt.interreflections, paired = Ko == Kl;
-        LineBuf o[2] = {LineBuf(B), LineBuf(B)}, l[2] = {LineBuf(B), LineBuf(B)};
+        const size_t G = group.size();
+        LineBuf o[2] = {LineBuf(B), LineBuf(B)};
+        std::vector<LineBuf> l(2 * G, LineBuf(B));  // level j's pair: l[2 j], l[2 j + 1]
         for (int k = 0; k < std::max(Ko, Kl); ++k) {
             const int s = k & 1;
             if (k < Ko) {
@@ -325,30 +353,37 @@ struct ScalingEstimator::Task {
                     ++acc_orig;
                     if (cv)  // g - c (scaling.h, "Control variate")
                         for (size_t q = 0; q < size_t(B) * 3; ++q) o[s].a[q] -= o[s].c[q], o[s].b[q] -= o[s].c[q];
-                    add_line(est.m_n1, o[s].a);
-                    if (ir) add_line(est.m_nir, o[s].b);
+                    for (ScalingEstimator *e : group) {
+                        add_line(e->m_n1, o[s].a);
+                        if (ir) add_line(e->m_nir, o[s].b);
+                    }
                 }
                 t_orig += seconds_since(t0);
             }
-            if (k < Kl) {
+            for (size_t j = 0; j < G && k < Kl; ++j) {
                 const auto t0 = Clock::now();
-                l[s].clear();
-                if (trace_low_line(k, Kl, l[s])) {
-                    ++acc_low;
-                    add_line(est.m_d, l[s].a);
+                LineBuf &lb = l[2 * j + size_t(s)];
+                lb.clear();
+                if (trace_low_line(*group[j], j, k, Kl, lb)) {
+                    ++acc_low[j];
+                    add_line(group[j]->m_d, lb.a);
                 }
-                t_low += seconds_since(t0);
+                t_low[j] += seconds_since(t0);
             }
             // A complete pair (k - 1, k) of a field, or its unpaired last line k (partner 0).
             const bool o_pair = k < Ko && (s == 1 || k == Ko - 1), l_pair = k < Kl && (s == 1 || k == Kl - 1);
             if (!o_pair && !l_pair) continue;
             const bool whole = s == 1;
-            add_pair(o_pair ? &o[0].a : nullptr, o_pair && whole ? &o[1].a : nullptr, l_pair ? &l[0].a : nullptr,
-                     l_pair && whole ? &l[1].a : nullptr, o_pair ? &est.m_n1sq : nullptr, l_pair ? &est.m_dsq : nullptr,
-                     paired ? &est.m_n1x : nullptr);
-            if (ir && o_pair)
-                add_pair(&o[0].b, whole ? &o[1].b : nullptr, paired ? &l[0].a : nullptr, paired && whole ? &l[1].a : nullptr,
-                         &est.m_nirsq, nullptr, paired ? &est.m_nirx : nullptr);
+            for (size_t j = 0; j < G; ++j) {
+                ScalingEstimator &e = *group[j];
+                const LineBuf &l0 = l[2 * j], &l1 = l[2 * j + 1];
+                add_pair(o_pair ? &o[0].a : nullptr, o_pair && whole ? &o[1].a : nullptr, l_pair ? &l0.a : nullptr,
+                         l_pair && whole ? &l1.a : nullptr, o_pair ? &e.m_n1sq : nullptr, l_pair ? &e.m_dsq : nullptr,
+                         paired ? &e.m_n1x : nullptr);
+                if (ir && o_pair)
+                    add_pair(&o[0].b, whole ? &o[1].b : nullptr, paired ? &l0.a : nullptr, paired && whole ? &l1.a : nullptr,
+                             &e.m_nirsq, nullptr, paired ? &e.m_nirx : nullptr);
+            }
         }
     }
     /// The control variate's cheap lines (scaling.h): directions and positions drawn as for
@@ -377,52 +412,81 @@ struct ScalingEstimator::Task {
                         const Spectrum f = est.m_base.eval(v.ctx, lwo, lwi);
                         for (int q = 0; q < 3; ++q) c[s].a[size_t(b) * 3 + size_t(q)] = f[q];
                     }
-                add_line(est.m_cv, c[s].a);
+                for (ScalingEstimator *e : group) add_line(e->m_cv, c[s].a);
             }
             if (s == 1 || k == K - 1)
-                add_pair(&c[0].a, s == 1 ? &c[1].a : nullptr, nullptr, nullptr, &est.m_cvsq, nullptr, nullptr);
+                for (ScalingEstimator *e : group)
+                    add_pair(&c[0].a, s == 1 ? &c[1].a : nullptr, nullptr, nullptr, &e->m_cvsq, nullptr, nullptr);
         }
         rejected = rej, leaked = leak;  // the counters report the lines of sight
     }
     /// The task's line counts and the shared counters (under a lock: tasks run in parallel).
-    void commit(double t_orig, double t_low) {
-        est.m_count_cv[task] += acc_cv;
-        est.m_count_orig[task] += acc_orig;
-        est.m_count_low[task] += acc_low;
+    /// Every level counts the original's lines (its numerator's) and is charged an equal share of
+    /// their time.
+    void commit(double t_orig) {
         static std::mutex mu;
         std::lock_guard<std::mutex> lock(mu);
-        ScalingStats &st = est.m_stats;
-        st.orig_lines += orig_lines;
-        st.low_lines += low_lines;
-        st.orig_vertices += vertices;
-        st.rejected += rejected;
-        st.leaked += leaked;
-        st.core_seconds_orig += t_orig;
-        st.core_seconds_low += t_low;
-        st.cv_lines += cv_lines;
+        for (size_t j = 0; j < group.size(); ++j) {
+            ScalingEstimator &e = *group[j];
+            e.m_count_cv[task] += acc_cv;
+            e.m_count_orig[task] += acc_orig;
+            e.m_count_low[task] += acc_low[j];
+            ScalingStats &st = e.m_stats;
+            st.orig_lines += orig_lines;
+            st.low_lines += low_lines[j];
+            st.orig_vertices += vertices;
+            st.rejected += rejected + low_rejected[j];
+            st.leaked += leaked + low_leaked[j];
+            st.core_seconds_orig += t_orig / double(group.size());
+            st.core_seconds_low += t_low[j];
+            st.cv_lines += cv_lines;
+        }
     }
 };
 
-void ScalingEstimator::trace_task(size_t task, uint64_t round_seed) {
-    Task t(*this, task, round_seed);
-    double t_orig = 0, t_low = 0;
+void ScalingEstimator::trace_task(const std::vector<ScalingEstimator *> &group, size_t task, uint64_t round_seed) {
+    Task t(*this, group, task, round_seed);
+    double t_orig = 0;
     if (t.cv) {
         const auto t0 = Clock::now();
         t.trace_cv_lines();
         t_orig += seconds_since(t0);
     }
-    t.trace_lines(t_orig, t_low);
-    t.commit(t_orig, t_low);
+    t.trace_lines(t_orig);
+    t.commit(t_orig);
 }
 
-size_t ScalingEstimator::add_round() {
+size_t ScalingEstimator::add_round() { return add_round_group({this}); }
+
+size_t ScalingEstimator::add_round_group(const std::vector<ScalingEstimator *> &group) {
+    if (group.empty()) return 0;
+    ScalingEstimator &lead = *group.front();
+    const ScalingOptions &lo = lead.m_opt;
+    for (const ScalingEstimator *e : group) {
+        const ScalingOptions &eo = e->m_opt;
+        if (&e->m_orig != &lead.m_orig || &e->m_base != &lead.m_base || eo.M != lo.M || eo.N != lo.N ||
+            eo.orig_paths != lo.orig_paths || eo.low_paths != lo.low_paths || eo.cv_lines != lo.cv_lines ||
+            eo.interreflections != lo.interreflections || e->m_stats.rounds != lead.m_stats.rounds)
+            throw MesoError("scaling function: estimators traced together must share the original, the base, M, N, "
+                            "the line counts and their rounds");
+    }
+    return lead.add_round_impl(group);
+}
+
+size_t ScalingEstimator::add_round_impl(const std::vector<ScalingEstimator *> &group) {
     const size_t tasks = size_t(m_opt.M) * m_opt.M * m_bins;
-    // The stopping rule: after the first round, only the ωo bins still above the target.
+    // The stopping rule: after the first round, only the ωo bins still above the target (for
+    // any level of the group: every level then gets the same lines, so their counts stay equal).
     std::vector<size_t> active;
     if (m_opt.target_error > 0 && m_stats.rounds > 0) {
-        const std::vector<double> per_bo = S_rel_se_per_wo_bin();
+        std::vector<char> on(tasks, 0);
+        for (const ScalingEstimator *e : group) {
+            const std::vector<double> per_bo = e->S_rel_se_per_wo_bin();
+            for (size_t t = 0; t < tasks; ++t)
+                if (per_bo[t % size_t(m_bins)] > e->m_opt.target_error) on[t] = 1;
+        }
         for (size_t t = 0; t < tasks; ++t)
-            if (per_bo[t % size_t(m_bins)] > m_opt.target_error) active.push_back(t);
+            if (on[t]) active.push_back(t);
     } else {
         for (size_t t = 0; t < tasks; ++t) active.push_back(t);
     }
@@ -434,22 +498,27 @@ size_t ScalingEstimator::add_round() {
     // the sum is exact) and every rank holds the same, single-process-identical arrays.
     const size_t ranks = size_t(dist::size()), rank = size_t(dist::rank());
     const size_t mine = ranks > 1 ? (active.size() + ranks - 1 - rank) / ranks : active.size();
-    const ScalingStats before = m_stats;
+    std::vector<ScalingStats> before;
+    for (const ScalingEstimator *e : group) before.push_back(e->m_stats);
     std::atomic<size_t> done{0};
     std::mutex mu;
     const auto t0 = Clock::now();
     tbb::parallel_for(size_t(0), mine, [&](size_t i) {
-        trace_task(active[ranks > 1 ? rank + i * ranks : i], round_seed);
+        trace_task(group, active[ranks > 1 ? rank + i * ranks : i], round_seed);
         const size_t d = ++done;
         if (m_opt.progress && (d % 16 == 0 || d == mine)) {
             std::lock_guard<std::mutex> lock(mu);
             m_opt.progress(double(d) / double(mine));
         }
     });
-    if (ranks > 1) share_round(before, active);
-    m_stats.seconds += dist::allreduce_max(seconds_since(t0));
-    m_stats.tasks_traced += active.size();
-    ++m_stats.rounds;
+    if (ranks > 1)
+        for (size_t j = 0; j < group.size(); ++j) group[j]->share_round(before[j], active);
+    const double secs = dist::allreduce_max(seconds_since(t0));
+    for (ScalingEstimator *e : group) {
+        e->m_stats.seconds += secs / double(group.size());  // each level's share of the shared round
+        e->m_stats.tasks_traced += active.size();
+        ++e->m_stats.rounds;
+    }
     return active.size();
 }
 

@@ -45,6 +45,11 @@
 // (task t to rank t mod ranks, every round) and exchanged after each round: the tables are
 // bit-identical to a single process's (docs/cluster.md).
 //
+// Levels share the original (add_round_group). The numerator does not depend on the level:
+// the levels of one model (a LoD chain) are estimated together, each line of sight on G_orig
+// traced once for all of them, and only the h_low lines per level. A chain of n levels then
+// costs one original's lines plus n h_low ones per round instead of n of each.
+//
 // Standard errors (what the stopping rule and the manifest report). The lines of a task are
 // taken in consecutive pairs (neighbouring strata when the positions are stratified), and each
 // table entry keeps Σ over pairs of the squared difference of the pair's two values: with n lines
@@ -156,6 +161,15 @@ public:
     /// first round, with opt.target_error > 0, only for the ωo bins still above it (scaling.h,
     /// "Stopping rule"). Returns the number of tasks traced (0: every bin is below the target).
     size_t add_round();
+    /// One round for several levels of ONE original (a LoD chain; the estimators share the
+    /// original field and base objects, M, N, the line counts and their round count; the first
+    /// one's seed draws the lines): each line of sight on the original is traced once and its
+    /// terms go to every level's numerator sums, and each level traces its own h_low line k with
+    /// line k's random numbers (common random numbers, as for one level). The stopping rule
+    /// traces the union of the levels' active tasks, so every level gets the same lines. Each
+    /// level's stats count the original's lines and an equal share of their time and of the
+    /// round's wall time. Throws MesoError when the estimators do not match.
+    static size_t add_round_group(const std::vector<ScalingEstimator *> &group);
     /// T and S (single and, with interreflections, ir) from the sums so far, and their stats.
     void finish(ScalingTables &single, ScalingTables &ir, ScalingStats &stats) const;
     /// The median relative standard error of S (the larger of single and ir) so far.
@@ -174,10 +188,13 @@ public:
     /// R(P, bin_i, bin_o) for one channel from the current sums (tests, diagnostics).
     double R(int patch, int bi, int bo, int channel, bool ir) const;
     const ScalingStats &stats() const { return m_stats; }
+    /// Replaces ScalingOptions::progress (a group's rounds report through their first estimator).
+    void set_progress(std::function<void(double)> f) { m_opt.progress = std::move(f); }
 
 private:
     struct Task;  ///< one (patch, ωo bin) task of a round (scaling.cpp)
-    void trace_task(size_t task, uint64_t round_seed);
+    void trace_task(const std::vector<ScalingEstimator *> &group, size_t task, uint64_t round_seed);
+    size_t add_round_impl(const std::vector<ScalingEstimator *> &group);
     /// MPI: every rank's tasks of the round to every rank (add_round), counters summed.
     void share_round(const ScalingStats &before, const std::vector<size_t> &active);
     double denom_mean(int ch) const;
