@@ -115,3 +115,117 @@ TEST(ShellShape, FlatSquareHitsEqualTheHeightfieldsOnTheMappedRay) {
                     compared, grazes, worst);
     }
 }
+
+namespace {
+
+/// A curved 6 x 6 grid over [-1, 1]^2 with z = bend (x^2 - 0.5 y^2) and smooth normals: the
+/// tetrahedra of a prism there have different world -> cell maps (no Prism::same_map).
+std::shared_ptr<ShellShape> curved_shell(float amp, float bend, uint64_t seed, std::shared_ptr<const Heightfield> &field) {
+    TriangleMesh m;
+    const int n = 6;
+    for (int j = 0; j <= n; ++j)
+        for (int i = 0; i <= n; ++i) {
+            const float x = -1.f + 2.f * float(i) / n, y = -1.f + 2.f * float(j) / n;
+            m.positions.push_back(Vec3(x, y, bend * (x * x - 0.5f * y * y)));
+            m.uvs.push_back(Vec2(float(i) / n, float(j) / n));
+        }
+    for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+            const uint32_t a = uint32_t(j * (n + 1) + i), b = a + 1, c = a + uint32_t(n + 1), d = c + 1;
+            m.indices.insert(m.indices.end(), {a, b, d, a, d, c});
+        }
+    HeightMap map(40, 40);
+    PCG32 rng(seed);
+    for (float &v : map.h) v = rng.next_float();
+    Displacement disp;
+    disp.field = std::make_shared<Heightfield>(map, amp, 0.f);
+    field = disp.field;
+    return std::make_shared<ShellShape>(m, disp, "curved");
+}
+
+bool shell_occluded(const ShellShape &s, Vec3 o, Vec3 d, float tnear, float tfar) {
+    for (uint32_t p = 0; p < s.primitive_count(); ++p)
+        if (s.occluded_prism(p, o, d, tnear, tfar)) return true;
+    return false;
+}
+
+/// Closest hit in (tnear, tfar) over all prisms.
+bool shell_hit_in(const ShellShape &s, Vec3 o, Vec3 d, float tnear, float tfar, float &t) {
+    bool hit = false;
+    for (uint32_t p = 0; p < s.primitive_count(); ++p) {
+        uint32_t tet;
+        float x, y;
+        hit |= s.intersect_prism(p, o, d, tnear, tfar, tet, x, y);
+    }
+    t = tfar;
+    return hit;
+}
+
+/// occluded_prism (with its early out for rays that end on the other side of the surface)
+/// against the closest-hit traversal: occluded in (tnear, tfar) exactly when the closest hit
+/// lies there, except where the closest hit is within round-off of tfar or the ray grazes.
+/// Rays: from above through the shell, from the surface upwards and downwards (as spawned
+/// rays leave it), grazing, along the prisms' diagonals and through grid vertices, ending
+/// just before or after their hit.
+void check_occlusion_matches_hits(const ShellShape &s, uint64_t seed, const char *what) {
+    PCG32 rng(seed);
+    int agree = 0, disagree = 0, occluded = 0, near_end = 0;
+    for (int k = 0; k < 20000; ++k) {
+        const int kind = k % 4;
+        const float px = -0.95f + 1.9f * rng.next_float(), py = -0.95f + 1.9f * rng.next_float();
+        // kind 2: along a diagonal of the grid (prism boundaries); kind 3: through grid vertices.
+        const float qx = kind == 3 ? -1.f + 2.f * float(int(rng.next_float() * 6.f)) / 6.f : px;
+        const float qy = kind == 2 ? qx + (rng.next_float() < 0.5f ? 0.f : 1.f / 3.f) : kind == 3 ? -1.f + 2.f * float(int(rng.next_float() * 6.f)) / 6.f : py;
+        const double theta = (kind == 1 ? 60.0 + 29.9 * rng.next_double() : 85.0 * rng.next_double()) * M_PI / 180,
+                     phi = kind == 2 ? M_PI / 4 : 2 * M_PI * rng.next_double();
+        Vec3 d(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)), float(-std::cos(theta)));
+        Vec3 o = Vec3(qx, qy, 0.f) - d * 1.f;
+        float tnear = 0.f;
+        if (kind == 1) {
+            // From the surface: the first hit from above, then up or down from just off it.
+            float t0;
+            if (!shell_hit_in(s, o, d, 0.f, Infinity, t0)) continue;
+            const Vec3 p = o + d * t0;
+            const bool up = rng.next_float() < 0.7f;
+            d = Vec3(d.x, d.y, up ? -d.z : d.z);
+            o = p + Vec3(0.f, 0.f, up ? 2e-5f : -2e-5f);
+            tnear = 0.f;
+        }
+        float th;
+        const bool hit = shell_hit_in(s, o, d, tnear, Infinity, th);
+        // tfar before or after the hit (or, without one, somewhere along the ray).
+        const float tfar = hit ? th * (rng.next_float() < 0.5f ? 0.999f : 1.001f) : 4.f * rng.next_float();
+        const bool expect = hit && th < tfar;
+        const bool occ = shell_occluded(s, o, d, tnear, tfar);
+        occluded += occ;
+        if (occ == expect) {
+            ++agree;
+            continue;
+        }
+        // Another crossing before tfar that the closest hit passed at a graze, or round-off at tfar.
+        if (hit && std::abs(th - tfar) < 1e-5f * (1.f + th)) {
+            ++near_end;
+            continue;
+        }
+        ++disagree;
+        if (disagree <= 5)
+            ADD_FAILURE() << what << ": ray " << k << " (kind " << kind << ") occluded " << occ << ", closest hit "
+                          << hit << " at " << th << ", tfar " << tfar;
+    }
+    EXPECT_EQ(disagree, 0) << what;
+    EXPECT_GT(agree, 15000) << what;
+    EXPECT_GT(occluded, 4000) << what;
+    EXPECT_LE(near_end, 20) << what;
+}
+
+}  // namespace
+
+TEST(ShellShape, OccludedAgreesWithTheClosestHit) {
+    for (const float tiling : {1.f, 3.f}) {
+        const SquareShell sq = square_shell(64, 48, 0.05f, tiling, 41);
+        check_occlusion_matches_hits(*sq.shape, 7, tiling == 1.f ? "flat square, tiling 1" : "flat square, tiling 3");
+    }
+    std::shared_ptr<const Heightfield> field;
+    const auto curved = curved_shell(0.05f, 0.3f, 43, field);
+    check_occlusion_matches_hits(*curved, 9, "curved grid");
+}

@@ -98,6 +98,13 @@ void map_to_cell(const Tet &T, const double w[3], double c[3]) {
     for (int i = 0; i < 3; ++i) c[i] = T.t0[i] + T.A[3 * i] * r[0] + T.A[3 * i + 1] * r[1] + T.A[3 * i + 2] * r[2];
 }
 
+/// +1 (-1): the cell-space point (x, y, h) (x, y relative to the integer cell origin ox, oy)
+/// lies above (below) the heightfield by more than `eps`; 0: too close to tell.
+int side_of_surface(const Heightfield &hf, double x, double y, double h, int64_t ox, int64_t oy, double eps) {
+    const double gap = h - double(hf.eval(x + double(ox), y + double(oy)));
+    return gap > eps ? 1 : gap < -eps ? -1 : 0;
+}
+
 }  // namespace
 
 /// The Prism::same_map bits: tetrahedra k and k' share a map when k's map takes every vertex
@@ -304,7 +311,17 @@ bool ShellShape::trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float 
         const Vec3 te = Vec3(T.t0[0], T.t0[1], T.t0[2]) + mul3(T.A, pe - Vec3(T.w0[0], T.w0[1], T.w0[2]));
         const Vec3 td = mul3(T.A, d);
         if constexpr (AnyHit) {
-            if (hf.occluded(te, td, 0.f, tb - ta, P.ox, P.oy)) return true;
+            // Early out: the ray starts on one side of the surface and ends on the other, so
+            // it crosses it in between (the heightfield is continuous): no traversal. The
+            // ends are placed in double as the leaf test places the ray; eps covers the
+            // float rounding of the local cell coordinate and of the bilinear height.
+            const float len = tb - ta;
+            const double eps = 1e-5 * (double(m_hmax) - m_hmin) + 1e-6 * std::max(std::abs(m_hmax), std::abs(m_hmin));
+            const int s0 = side_of_surface(hf, te.x, te.y, te.z, P.ox, P.oy, eps);
+            if (s0 != 0 && side_of_surface(hf, te.x + double(len) * td.x, te.y + double(len) * td.y,
+                                           te.z + double(len) * td.z, P.ox, P.oy, eps) == -s0)
+                return true;
+            if (hf.occluded(te, td, 0.f, len, P.ox, P.oy)) return true;
         } else {
             HeightfieldHit h;
             if (hf.intersect(te, td, 0.f, tb - ta, h, P.ox, P.oy)) {
