@@ -65,54 +65,124 @@ bool grazes_between(const Heightfield &f, Vec3 o, Vec3 d, double sx, double sy, 
 
 }  // namespace
 
+namespace {
+
+/// Shell hits of a flat square against the field's hits on the same ray mapped to cell space
+/// in double (x = (X + 1) sx, y = (Y + 1) sy, h = Z), without prisms or tetrahedra.
+struct MappedFieldComparison {
+    const SquareShell &sq;
+    double sx, sy;  ///< cells per world unit
+    int compared = 0, disagree = 0, grazes = 0;
+    double worst = 0;
+
+    explicit MappedFieldComparison(const SquareShell &s)
+        : sq(s), sx(0.5 * s.W * s.tiling), sy(0.5 * s.H * s.tiling) {}
+
+    void add(Vec3 o, Vec3 d) {
+        float ts;
+        const bool hs = shell_hit(*sq.shape, o, d, ts);
+        const Vec3 oc(float((double(o.x) + 1) * sx), float((double(o.y) + 1) * sy), o.z);
+        const Vec3 dc(float(d.x * sx), float(d.y * sy), d.z);
+        HeightfieldHit h;
+        const bool hr = sq.field->intersect(oc, dc, 0.f, Infinity, h);
+        // Where the field's hit lies outside the square (rays aimed near its edge at a
+        // slant) the shell has no surface: only hits inside it are compared.
+        if (hr && (std::abs(h.x / sx - 1) > 0.999 || std::abs(h.y / sy - 1) > 0.999)) return;
+        if (hs != hr) {
+            // One of the two found a tangential touch (the ray stays on or above the surface
+            // around it) that the other passed.
+            const double t = hs ? ts : h.t;
+            if (grazes_between(*sq.field, o, d, sx, sy, std::max(0.0, t - 1e-3), t + 1e-3)) ++grazes;
+            else ++disagree;
+            return;
+        }
+        if (!hr) return;
+        ++compared;
+        // Round-off: float ulps of the cell coordinates (up to 192 cells here, ulp 1.5e-5)
+        // divided by the ray's slope against the surface; measured worst 2.6e-6 (1 + t) with
+        // tetrahedra merged, 1.7e-6 without.
+        const double err = std::abs(double(ts) - h.t) / (1e-5 * (1 + double(h.t)));
+        if (err > 1.0 && grazes_between(*sq.field, o, d, sx, sy, std::min(double(ts), double(h.t)),
+                                        std::max(double(ts), double(h.t)))) {
+            ++grazes;  // one of the two stopped at a tangential touch the other passed
+            return;
+        }
+        worst = std::max(worst, err);
+    }
+};
+
+/// The direction at angle theta (radians) from -z and azimuth phi.
+Vec3 direction(double theta, double phi) {
+    return Vec3(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)), float(-std::cos(theta)));
+}
+
+}  // namespace
+
 TEST(ShellShape, FlatSquareHitsEqualTheHeightfieldsOnTheMappedRay) {
     for (const float tiling : {1.f, 3.f}) {
         const SquareShell sq = square_shell(64, 48, 0.05f, tiling, 31);
-        const double sx = 0.5 * sq.W * tiling, sy = 0.5 * sq.H * tiling;  // cells per world unit
+        MappedFieldComparison cmp(sq);
         PCG32 rng(17);
-        int compared = 0, disagree = 0, grazes = 0;
-        double worst = 0;
         for (int k = 0; k < 20000; ++k) {
             // Aimed at a point inside the square from above, at up to 85 degrees from the normal.
             const double theta = std::acos(1 - rng.next_double() * (1 - std::cos(85.0 * M_PI / 180))),
                          phi = 2 * M_PI * rng.next_double();
-            const Vec3 d(float(std::sin(theta) * std::cos(phi)), float(std::sin(theta) * std::sin(phi)),
-                         float(-std::cos(theta)));
+            const Vec3 d = direction(theta, phi);
             const double px = -0.9 + 1.8 * rng.next_double(), py = -0.9 + 1.8 * rng.next_double(), s = 0.2 / std::cos(theta);
-            const Vec3 o(float(px - s * d.x), float(py - s * d.y), float(0.1 - s * d.z));
-            float ts;
-            const bool hs = shell_hit(*sq.shape, o, d, ts);
-            // The same ray in cell space (x = (X + 1) sx, y = (Y + 1) sy, h = Z), mapped in double.
-            const Vec3 oc(float((double(o.x) + 1) * sx), float((double(o.y) + 1) * sy), o.z);
-            const Vec3 dc(float(d.x * sx), float(d.y * sy), d.z);
-            HeightfieldHit h;
-            const bool hr = sq.field->intersect(oc, dc, 0.f, Infinity, h);
-            // Where the field's hit lies outside the square (rays aimed near its edge at a
-            // slant) the shell has no surface: only hits inside it are compared.
-            if (hr && (std::abs(h.x / sx - 1) > 0.999 || std::abs(h.y / sy - 1) > 0.999)) continue;
-            if (hs != hr) {
-                ++disagree;
-                continue;
-            }
-            if (!hr) continue;
-            ++compared;
-            // Round-off: float ulps of the cell coordinates (up to 192 cells here, ulp 1.5e-5)
-            // divided by the ray's slope against the surface; measured worst 2.6e-6 (1 + t) with
-            // tetrahedra merged, 1.7e-6 without.
-            const double err = std::abs(double(ts) - h.t) / (1e-5 * (1 + double(h.t)));
-            if (err > 1.0 && grazes_between(*sq.field, o, d, sx, sy, std::min(double(ts), double(h.t)),
-                                            std::max(double(ts), double(h.t)))) {
-                ++grazes;  // one of the two stopped at a tangential touch the other passed
-                continue;
-            }
-            worst = std::max(worst, err);
+            cmp.add(Vec3(float(px - s * d.x), float(py - s * d.y), float(0.1 - s * d.z)), d);
         }
-        EXPECT_GT(compared, 15000) << tiling;
-        EXPECT_LE(grazes, compared / 1000) << tiling;
-        EXPECT_EQ(disagree, 0) << tiling;
-        EXPECT_LE(worst, 1.0) << "tiling " << tiling << ": worst |t_shell - t_field| in units of 1e-5 (1 + t), grazes left out";
+        EXPECT_GT(cmp.compared, 15000) << tiling;
+        EXPECT_LE(cmp.grazes, cmp.compared / 1000) << tiling;
+        EXPECT_EQ(cmp.disagree, 0) << tiling;
+        EXPECT_LE(cmp.worst, 1.0) << "tiling " << tiling << ": worst |t_shell - t_field| in units of 1e-5 (1 + t), grazes left out";
         std::printf("[shell vs field] tiling %g: %d hits compared, %d grazes, worst %.3g x 1e-5 (1 + t)\n", tiling,
-                    compared, grazes, worst);
+                    cmp.compared, cmp.grazes, cmp.worst);
+    }
+}
+
+// The prism clip (one clip of a flat prism in cell space) at its edges: rays grazing the shell
+// (85 to 89.9 degrees), in the vertical plane of the prisms' shared diagonal x = y (and
+// vertical ones on it), through cell-grid vertices, and from the surface up or down as a
+// spawned ray leaves it, against the same independent mapped-field path.
+TEST(ShellShape, FlatSquareHitsAtPrismEdgesGrazingAndFromTheSurface) {
+    for (const float tiling : {1.f, 3.f}) {
+        const SquareShell sq = square_shell(64, 48, 0.05f, tiling, 33);
+        MappedFieldComparison cmp(sq);
+        PCG32 rng(19);
+        for (int k = 0; k < 16000; ++k) {
+            const int kind = k % 4;
+            double theta = std::acos(1 - rng.next_double() * (1 - std::cos(85.0 * M_PI / 180))),
+                   phi = 2 * M_PI * rng.next_double();
+            double px = -0.9 + 1.8 * rng.next_double(), py = -0.9 + 1.8 * rng.next_double();
+            if (kind == 0) theta = (85.0 + 4.9 * rng.next_double()) * M_PI / 180;
+            if (kind == 1) {  // on the diagonal, along it or vertical
+                py = px;
+                const double r = rng.next_double();
+                phi = r < 0.4 ? M_PI / 4 : r < 0.8 ? 5 * M_PI / 4 : phi;
+                if (r >= 0.8) theta = 0.0;
+            }
+            if (kind == 2) {  // through a cell-grid vertex
+                px = std::floor(rng.next_double() * 2 * cmp.sx) / cmp.sx - 1;
+                py = std::floor(rng.next_double() * 2 * cmp.sy) / cmp.sy - 1;
+            }
+            Vec3 d = direction(theta, phi);
+            const double s = 0.2 / std::max(std::cos(theta), 0.02);
+            Vec3 o(float(px - s * d.x), float(py - s * d.y), float(0.1 - s * d.z));
+            if (kind == 3) {  // from the surface: off the first hit, up (mirrored) or on down
+                float t;
+                if (!shell_hit(*sq.shape, o, d, t)) continue;
+                const bool up = rng.next_float() < 0.6f;
+                o = o + d * t + Vec3(0.f, 0.f, up ? 2e-5f : -2e-5f);
+                if (up) d = Vec3(d.x, d.y, -d.z);
+            }
+            cmp.add(o, d);
+        }
+        EXPECT_GT(cmp.compared, 9000) << tiling;
+        EXPECT_LE(cmp.grazes, cmp.compared / 100) << tiling;
+        EXPECT_EQ(cmp.disagree, 0) << tiling;
+        EXPECT_LE(cmp.worst, 1.0) << "tiling " << tiling << ": worst |t_shell - t_field| in units of 1e-5 (1 + t), grazes left out";
+        std::printf("[shell vs field, edges] tiling %g: %d hits compared, %d grazes, worst %.3g x 1e-5 (1 + t)\n", tiling,
+                    cmp.compared, cmp.grazes, cmp.worst);
     }
 }
 
