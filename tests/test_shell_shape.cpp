@@ -20,13 +20,13 @@ struct SquareShell {
     std::shared_ptr<const Heightfield> field;
 };
 
-/// The square [-1, 1]^2 at z = 0, normal +z, uv = ((x + 1) / 2, (y + 1) / 2), displaced by a
-/// W x H noise map of amplitude `amp`, tiled `tiling` times.
-SquareShell square_shell(int W, int H, float amp, float tiling, uint64_t seed) {
+/// The square [-1, 1]^2 at z = 0, normal +z, uv = ((x + 1) / 2, (y + 1) / 2) + uv_shift,
+/// displaced by a W x H noise map of amplitude `amp`, tiled `tiling` times.
+SquareShell square_shell(int W, int H, float amp, float tiling, uint64_t seed, Vec2 uv_shift = Vec2(0.f, 0.f)) {
     TriangleMesh m;
     m.positions = {Vec3(-1, -1, 0), Vec3(1, -1, 0), Vec3(1, 1, 0), Vec3(-1, 1, 0)};
     m.normals = {Vec3(0, 0, 1), Vec3(0, 0, 1), Vec3(0, 0, 1), Vec3(0, 0, 1)};
-    m.uvs = {Vec2(0, 0), Vec2(1, 0), Vec2(1, 1), Vec2(0, 1)};
+    m.uvs = {Vec2(0, 0) + uv_shift, Vec2(1, 0) + uv_shift, Vec2(1, 1) + uv_shift, Vec2(0, 1) + uv_shift};
     m.indices = {0, 1, 2, 0, 2, 3};
     HeightMap map(W, H);
     PCG32 rng(seed);
@@ -295,6 +295,9 @@ TEST(ShellShape, OccludedAgreesWithTheClosestHit) {
         const SquareShell sq = square_shell(64, 48, 0.05f, tiling, 41);
         check_occlusion_matches_hits(*sq.shape, 7, tiling == 1.f ? "flat square, tiling 1" : "flat square, tiling 3");
     }
+    // Prism cell origins beyond the map and negative (the early out reduces them to one period).
+    const SquareShell far = square_shell(64, 48, 0.05f, 2.f, 45, Vec2(11.25f, -6.5f));
+    check_occlusion_matches_hits(*far.shape, 8, "flat square, uv shifted by (11.25, -6.5)");
     std::shared_ptr<const Heightfield> field;
     const auto curved = curved_shell(0.05f, 0.3f, 43, field);
     check_occlusion_matches_hits(*curved, 9, "curved grid");
