@@ -18,6 +18,9 @@
 //   the micro uv and dp/du, dp/dv.
 // * Tetrahedra of one prism that share their world -> cell map (a flat base with linear uvs)
 //   are traced as one segment (Prism::same_map); the clip runs in float SSE (four faces at once).
+//   Where all three share it (Prism::one_map) the prism is clipped once, in cell space.
+// * Occlusion: a segment that starts on one side of the heightfield and ends on the other
+//   (beyond a round-off margin) crosses it: occluded without a traversal.
 // * Memory: per prism three 27-float tetrahedra plus an integer cell origin, and the
 //   heightfield (map + min/max pyramid) once, whatever the tiling.
 #pragma once
