@@ -184,6 +184,7 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
     const double pad = std::max({1e-3 * thick, 1e-4 * mean_edge, 1e-12});
     m_hmin = float(m_disp.field->min_height() - pad);
     m_hmax = float(m_disp.field->max_height() + pad);
+    m_inv_thick = 1.f / (m_hmax - m_hmin);
 
     std::vector<float> areas;
     m_prisms.reserve(ntri);
@@ -326,7 +327,7 @@ bool ShellShape::clip_prism(const Prism &P, Vec3 o, Vec3 d, float &t0, float &t1
     // barycentrics of the base triangle and the height above the bottom and below the top
     // (in units of the shell's thickness), padded like clip() pads a tetrahedron's. Lanes
     // (lambda_0, lambda_1, lambda_2, above the bottom), then below the top four times.
-    const float inv_thick = 1.f / (m_hmax - m_hmin);
+    const float inv_thick = m_inv_thick;
     const __m128 bx = _mm_setr_ps(P.bary[0][0], P.bary[1][0], P.bary[2][0], 0.f);
     const __m128 by = _mm_setr_ps(P.bary[0][1], P.bary[1][1], P.bary[2][1], 0.f);
     const __m128 bc = _mm_setr_ps(P.bary[0][2], P.bary[1][2], P.bary[2][2], 0.f);

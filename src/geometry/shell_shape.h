@@ -109,6 +109,7 @@ private:
     std::vector<Prism> m_prisms;
     std::vector<uint32_t> m_prism_tri;  ///< base triangle of each prism
     float m_hmin = 0.f, m_hmax = 0.f;  ///< padded shell heights
+    float m_inv_thick = 0.f;           ///< 1 / (m_hmax - m_hmin)
     float m_base_area = 0.f;
     Distribution1D m_area_distr;
     std::string m_name;
