@@ -132,10 +132,14 @@ float Heightfield::eval(double x, double y) const {
 }
 
 float Heightfield::eval(double x, double y, float &dhdx, float &dhdy) const {
-    int64_t i = ifloor(x), j = ifloor(y);
-    float a = float(x - double(i)), b = float(y - double(j));
-    float h00 = vertex(i, j), h10 = vertex(i + 1, j), h01 = vertex(i, j + 1), h11 = vertex(i + 1, j + 1);
-    return bilinear_patch(h00, h10, h01, h11, a, b, dhdx, dhdy);
+    const int64_t i = ifloor(x), j = ifloor(y);
+    const float a = float(x - double(i)), b = float(y - double(j));
+    // The cell's corners (i, j) .. (i + 1, j + 1), wrapped once (vertex() per corner
+    // wrapped each, eight integer divisions).
+    const size_t i0 = size_t(wrap_index(i, m_w)), j0 = size_t(wrap_index(j, m_h));
+    const size_t i1 = i0 + 1 == size_t(m_w) ? 0 : i0 + 1, j1 = j0 + 1 == size_t(m_h) ? 0 : j0 + 1;
+    const float *r0 = &m_heights[j0 * size_t(m_w)], *r1 = &m_heights[j1 * size_t(m_w)];
+    return bilinear_patch(r0[i0], r0[i1], r1[i0], r1[i1], a, b, dhdx, dhdy);
 }
 
 HeightMap Heightfield::box_downsampled(int f) const {

@@ -98,6 +98,17 @@ void map_to_cell(const Tet &T, const double w[3], double c[3]) {
     for (int i = 0; i < 3; ++i) c[i] = T.t0[i] + T.A[3 * i] * r[0] + T.A[3 * i + 1] * r[1] + T.A[3 * i + 2] * r[2];
 }
 
+/// +1 (-1): the cell-space point (x, y, h) (x, y relative to the integer cell origin ox, oy)
+/// lies above (below) the heightfield by more than `eps`; 0: too close to tell.
+int side_of_surface(const Heightfield &hf, double x, double y, double h, int64_t ox, int64_t oy, double eps) {
+    // The field is periodic: the origin reduced to one period keeps x + ox small (a huge
+    // tiling would otherwise round the cell coordinate beyond what eps covers).
+    if (ox < 0 || ox >= hf.width()) ox %= hf.width();
+    if (oy < 0 || oy >= hf.height()) oy %= hf.height();
+    const double gap = h - double(hf.eval(x + double(ox), y + double(oy)));
+    return gap > eps ? 1 : gap < -eps ? -1 : 0;
+}
+
 }  // namespace
 
 /// The Prism::same_map bits: tetrahedra k and k' share a map when k's map takes every vertex
@@ -123,6 +134,27 @@ uint8_t ShellShape::shared_maps(const Prism &P, const double wv[6][3], const dou
             if (same) bits |= uint8_t(1u << (k + k2 - 1));
         }
     return bits;
+}
+
+/// Prism::one_map and bary: the base triangle's barycentric coordinates as affine functions
+/// of cell-space (x, y) (tv: the prism's cell-space vertices, 0..2 the bottom ones).
+void ShellShape::set_one_map(Prism &P, const double tv[6][3]) {
+    if (P.same_map != 7) return;
+    const double x0 = tv[0][0], y0 = tv[0][1], x1 = tv[1][0], y1 = tv[1][1], x2 = tv[2][0], y2 = tv[2][1];
+    const double det = (y1 - y2) * (x0 - x2) + (x2 - x1) * (y0 - y2);
+    const double scale = std::max({std::abs(x0 - x2), std::abs(y0 - y2), std::abs(x1 - x2), std::abs(y1 - y2)});
+    if (!(std::abs(det) > 1e-6 * scale * scale) || !std::isfinite(det)) return;
+    const double e[2][2] = {{(y1 - y2) / det, (x2 - x1) / det}, {(y2 - y0) / det, (x0 - x2) / det}};
+    for (int k = 0; k < 2; ++k) {
+        P.bary[k][0] = float(e[k][0]);
+        P.bary[k][1] = float(e[k][1]);
+        P.bary[k][2] = float(-(e[k][0] * x2 + e[k][1] * y2));
+    }
+    // lambda_2 = 1 - lambda_0 - lambda_1.
+    P.bary[2][0] = float(-(e[0][0] + e[1][0]));
+    P.bary[2][1] = float(-(e[0][1] + e[1][1]));
+    P.bary[2][2] = float(1.0 + e[0][0] * x2 + e[0][1] * y2 + e[1][0] * x2 + e[1][1] * y2);
+    P.one_map = true;
 }
 
 ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string name)
@@ -152,6 +184,7 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
     const double pad = std::max({1e-3 * thick, 1e-4 * mean_edge, 1e-12});
     m_hmin = float(m_disp.field->min_height() - pad);
     m_hmax = float(m_disp.field->max_height() + pad);
+    m_inv_thick = 1.f / (m_hmax - m_hmin);
 
     std::vector<float> areas;
     m_prisms.reserve(ntri);
@@ -205,6 +238,7 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
         }
         if (!P.valid) continue;
         P.same_map = shared_maps(P, wv, tv);
+        set_one_map(P, tv);
         m_prisms.push_back(P);
         m_prism_tri.push_back(uint32_t(t));
         areas.push_back(area);
@@ -231,6 +265,42 @@ void ShellShape::prism_bounds(uint32_t prism, float lo[3], float hi[3]) const {
     hi[0] = h.x, hi[1] = h.y, hi[2] = h.z;
 }
 
+namespace {
+
+/// The four lanes of n_k + t s_k >= -eps as bounds on t: a (entering faces, s > 0; else
+/// -inf) and b (leaving faces, s < 0; else +inf). False if the ray runs parallel to a face
+/// outside it.
+inline bool lane_bounds(__m128 n, __m128 s, __m128 eps, __m128 &a, __m128 &b) {
+    const __m128 zero = _mm_setzero_ps(), neg_eps = _mm_sub_ps(zero, eps);
+    if (_mm_movemask_ps(_mm_and_ps(_mm_cmpeq_ps(s, zero), _mm_cmplt_ps(n, neg_eps)))) return false;
+    const __m128 tk = _mm_div_ps(_mm_sub_ps(neg_eps, n), s);
+    const __m128 enter = _mm_cmpgt_ps(s, zero), leave = _mm_cmplt_ps(s, zero);
+    a = _mm_or_ps(_mm_and_ps(enter, tk), _mm_andnot_ps(enter, _mm_set1_ps(-Infinity)));
+    b = _mm_or_ps(_mm_and_ps(leave, tk), _mm_andnot_ps(leave, _mm_set1_ps(Infinity)));
+    return true;
+}
+
+/// The largest |lane|.
+inline float max_abs_lane(__m128 v) {
+    v = _mm_and_ps(v, _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)));
+    v = _mm_max_ps(v, _mm_shuffle_ps(v, v, _MM_SHUFFLE(2, 3, 0, 1)));
+    v = _mm_max_ps(v, _mm_shuffle_ps(v, v, _MM_SHUFFLE(1, 0, 3, 2)));
+    return _mm_cvtss_f32(v);
+}
+
+/// [t0, t1] narrowed to [max a, min b]; false if empty.
+inline bool narrow(__m128 a, __m128 b, float &t0, float &t1) {
+    a = _mm_max_ps(a, _mm_shuffle_ps(a, a, _MM_SHUFFLE(2, 3, 0, 1)));
+    a = _mm_max_ps(a, _mm_shuffle_ps(a, a, _MM_SHUFFLE(1, 0, 3, 2)));
+    b = _mm_min_ps(b, _mm_shuffle_ps(b, b, _MM_SHUFFLE(2, 3, 0, 1)));
+    b = _mm_min_ps(b, _mm_shuffle_ps(b, b, _MM_SHUFFLE(1, 0, 3, 2)));
+    t0 = std::max(t0, _mm_cvtss_f32(a));
+    t1 = std::min(t1, _mm_cvtss_f32(b));
+    return t0 <= t1;
+}
+
+}  // namespace
+
 bool ShellShape::clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1) {
     // Barycentric coordinates along the ray, lambda_k(t) = n_k + t s_k, the four at once. In
     // float: the error of n (a few ulps of |N| |o - w0|) is of the order of the float rounding
@@ -243,26 +313,36 @@ bool ShellShape::clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1) {
                                 _mm_mul_ps(nz, _mm_set1_ps(d.z)));
     // Pad: the tetrahedra of a shell overlap a little along shared faces, by more than the
     // float error of N applied to a distant origin, so no ray slips between them.
-    __m128 an = _mm_and_ps(n, _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff)));
-    an = _mm_max_ps(an, _mm_shuffle_ps(an, an, _MM_SHUFFLE(2, 3, 0, 1)));
-    an = _mm_max_ps(an, _mm_shuffle_ps(an, an, _MM_SHUFFLE(1, 0, 3, 2)));
-    const float nmax = std::max(1.f, _mm_cvtss_f32(an));
+    const float nmax = std::max(1.f, max_abs_lane(n));
     const __m128 eps = _mm_set1_ps(1e-5f + 1e-6f * nmax);
-    const __m128 zero = _mm_setzero_ps();
-    // A face the ray runs parallel to, outside it: no segment.
-    if (_mm_movemask_ps(_mm_and_ps(_mm_cmpeq_ps(s, zero), _mm_cmplt_ps(n, _mm_sub_ps(zero, eps))))) return false;
-    // Entering faces (s > 0) raise t0, leaving ones (s < 0) lower t1.
-    const __m128 tk = _mm_div_ps(_mm_sub_ps(_mm_sub_ps(zero, eps), n), s);
-    const __m128 enter = _mm_cmpgt_ps(s, zero), leave = _mm_cmplt_ps(s, zero);
-    __m128 a = _mm_or_ps(_mm_and_ps(enter, tk), _mm_andnot_ps(enter, _mm_set1_ps(-Infinity)));
-    __m128 b = _mm_or_ps(_mm_and_ps(leave, tk), _mm_andnot_ps(leave, _mm_set1_ps(Infinity)));
-    a = _mm_max_ps(a, _mm_shuffle_ps(a, a, _MM_SHUFFLE(2, 3, 0, 1)));
-    a = _mm_max_ps(a, _mm_shuffle_ps(a, a, _MM_SHUFFLE(1, 0, 3, 2)));
-    b = _mm_min_ps(b, _mm_shuffle_ps(b, b, _MM_SHUFFLE(2, 3, 0, 1)));
-    b = _mm_min_ps(b, _mm_shuffle_ps(b, b, _MM_SHUFFLE(1, 0, 3, 2)));
-    t0 = std::max(t0, _mm_cvtss_f32(a));
-    t1 = std::min(t1, _mm_cvtss_f32(b));
-    return t0 <= t1;
+    __m128 a, b;
+    return lane_bounds(n, s, eps, a, b) && narrow(a, b, t0, t1);
+}
+
+bool ShellShape::clip_prism(const Prism &P, Vec3 o, Vec3 d, float &t0, float &t1) const {
+    const Tet &T = P.tet[0];
+    const Vec3 c = Vec3(T.t0[0], T.t0[1], T.t0[2]) + mul3(T.A, o - Vec3(T.w0[0], T.w0[1], T.w0[2]));
+    const Vec3 cd = mul3(T.A, d);
+    // Five coordinates that are >= 0 inside the prism, along the ray n_k + t s_k: the three
+    // barycentrics of the base triangle and the height above the bottom and below the top
+    // (in units of the shell's thickness), padded like clip() pads a tetrahedron's. Lanes
+    // (lambda_0, lambda_1, lambda_2, above the bottom), then below the top four times.
+    const float inv_thick = m_inv_thick;
+    const __m128 bx = _mm_setr_ps(P.bary[0][0], P.bary[1][0], P.bary[2][0], 0.f);
+    const __m128 by = _mm_setr_ps(P.bary[0][1], P.bary[1][1], P.bary[2][1], 0.f);
+    const __m128 bc = _mm_setr_ps(P.bary[0][2], P.bary[1][2], P.bary[2][2], 0.f);
+    const __m128 hz = _mm_setr_ps(0.f, 0.f, 0.f, inv_thick);
+    const __m128 n = _mm_add_ps(_mm_add_ps(_mm_mul_ps(bx, _mm_set1_ps(c.x)), _mm_mul_ps(by, _mm_set1_ps(c.y))),
+                                _mm_add_ps(bc, _mm_mul_ps(hz, _mm_set1_ps(c.z - m_hmin))));
+    const __m128 s = _mm_add_ps(_mm_add_ps(_mm_mul_ps(bx, _mm_set1_ps(cd.x)), _mm_mul_ps(by, _mm_set1_ps(cd.y))),
+                                _mm_mul_ps(hz, _mm_set1_ps(cd.z)));
+    const float top = (m_hmax - c.z) * inv_thick;
+    const float nmax = std::max({1.f, max_abs_lane(n), std::abs(top)});
+    const __m128 eps = _mm_set1_ps(1e-5f + 1e-6f * nmax);
+    __m128 a, b, a2, b2;
+    if (!lane_bounds(n, s, eps, a, b) || !lane_bounds(_mm_set1_ps(top), _mm_set1_ps(-cd.z * inv_thick), eps, a2, b2))
+        return false;
+    return narrow(_mm_max_ps(a, a2), _mm_min_ps(b, b2), t0, t1);
 }
 
 template <bool AnyHit>
@@ -274,10 +354,17 @@ bool ShellShape::trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float 
         int k;
     } seg[3];
     int ns = 0;
-    for (int k = 0; k < 3; ++k) {
-        if (!(P.valid & (1u << k))) continue;
+    if (P.one_map) {
+        // One clip of the whole prism in cell space; traced through tetrahedron 0's map.
         float a = tnear, b = tfar;
-        if (clip(P.tet[k], o, d, a, b)) seg[ns++] = {a, b, k};
+        if (!clip_prism(P, o, d, a, b)) return false;
+        seg[ns++] = {a, b, 0};
+    } else {
+        for (int k = 0; k < 3; ++k) {
+            if (!(P.valid & (1u << k))) continue;
+            float a = tnear, b = tfar;
+            if (clip(P.tet[k], o, d, a, b)) seg[ns++] = {a, b, k};
+        }
     }
     if (ns == 0) return false;
     for (int i = 1; i < ns; ++i)  // insertion sort of at most three segments by entry
@@ -304,7 +391,17 @@ bool ShellShape::trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float 
         const Vec3 te = Vec3(T.t0[0], T.t0[1], T.t0[2]) + mul3(T.A, pe - Vec3(T.w0[0], T.w0[1], T.w0[2]));
         const Vec3 td = mul3(T.A, d);
         if constexpr (AnyHit) {
-            if (hf.occluded(te, td, 0.f, tb - ta, P.ox, P.oy)) return true;
+            // Early out: the ray starts on one side of the surface and ends on the other, so
+            // it crosses it in between (the heightfield is continuous): no traversal. The
+            // ends are placed in double as the leaf test places the ray; eps covers the
+            // float rounding of the local cell coordinate and of the bilinear height.
+            const float len = tb - ta;
+            const double eps = 1e-5 * (double(m_hmax) - m_hmin) + 1e-6 * std::max(std::abs(m_hmax), std::abs(m_hmin));
+            const int s0 = side_of_surface(hf, te.x, te.y, te.z, P.ox, P.oy, eps);
+            if (s0 != 0 && side_of_surface(hf, te.x + double(len) * td.x, te.y + double(len) * td.y,
+                                           te.z + double(len) * td.z, P.ox, P.oy, eps) == -s0)
+                return true;
+            if (hf.occluded(te, td, 0.f, len, P.ox, P.oy)) return true;
         } else {
             HeightfieldHit h;
             if (hf.intersect(te, td, 0.f, tb - ta, h, P.ox, P.oy)) {

@@ -18,6 +18,9 @@
 //   the micro uv and dp/du, dp/dv.
 // * Tetrahedra of one prism that share their world -> cell map (a flat base with linear uvs)
 //   are traced as one segment (Prism::same_map); the clip runs in float SSE (four faces at once).
+//   Where all three share it (Prism::one_map) the prism is clipped once, in cell space.
+// * Occlusion: a segment that starts on one side of the heightfield and ends on the other
+//   (beyond a round-off margin) crosses it: occluded without a traversal.
 // * Memory: per prism three 27-float tetrahedra plus an integer cell origin, and the
 //   heightfield (map + min/max pyramid) once, whatever the tiling.
 #pragma once
@@ -85,10 +88,18 @@ private:
         /// the same affine map up to float round-off (a flat base with linear uvs), so a ray
         /// crossing both is traced in one heightfield call.
         uint8_t same_map = 0;
+        /// same_map for all three pairs and a base triangle with an area in cell space: the
+        /// prism is clipped once, in cell space through tetrahedron 0's map (clip_prism), as
+        /// the triangle's barycentrics bary (lambda_k = bary[k] . (x, y, 1)) and the height slab.
+        bool one_map = false;
+        float bary[3][3] = {};
     };
     static uint8_t shared_maps(const Prism &P, const double wv[6][3], const double tv[6][3]);
+    static void set_one_map(Prism &P, const double tv[6][3]);
     /// Clips o + t d to tetrahedron `T` within [t0, t1]; false if empty.
     static bool clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1);
+    /// Clips o + t d to a one_map prism within [t0, t1] (in cell space); false if empty.
+    bool clip_prism(const Prism &P, Vec3 o, Vec3 d, float &t0, float &t1) const;
     template <bool AnyHit>
     bool trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float tfar, float *t_hit, uint32_t *tet, float *x,
                      float *y) const;
@@ -98,6 +109,7 @@ private:
     std::vector<Prism> m_prisms;
     std::vector<uint32_t> m_prism_tri;  ///< base triangle of each prism
     float m_hmin = 0.f, m_hmax = 0.f;  ///< padded shell heights
+    float m_inv_thick = 0.f;           ///< 1 / (m_hmax - m_hmin)
     float m_base_area = 0.f;
     Distribution1D m_area_distr;
     std::string m_name;
