@@ -58,6 +58,7 @@
 #include <fmt/format.h>
 #include <algorithm>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <vector>
 #include "core/error.h"
 #include "geometry/shape.h"
@@ -125,12 +126,11 @@ public:
         if (plan.kind == RectPlan::Float || plan.kind == RectPlan::Double || plan.kind == RectPlan::Area) {
             // A rectangle: one direction uniform in its solid angle, or one point uniform on it.
             if (plan.kind == RectPlan::Float) {
-                Vec2 ab;
-                if (!plan.f.sample(u, p, ab)) return false;
+                if (!plan.f.sample(u, p)) return false;
                 pdf = 1.f / plan.f.S;
             } else if (plan.kind == RectPlan::Double) {
-                if (!plan.d.sample(u, p)) return false;
-                pdf = float(1.0 / plan.d.S);
+                if (!plan.d->sample(u, p)) return false;
+                pdf = float(1.0 / plan.d->S);
             } else {
                 p = m_rect.s + m_rect.x * (u.x * m_rect.lx) + m_rect.y * (u.y * m_rect.ly);
             }
@@ -200,7 +200,7 @@ public:
         if (plan.kind == RectPlan::Float) {
             pdf = 1.f / plan.f.S;
         } else if (plan.kind == RectPlan::Double) {
-            pdf = float(1.0 / plan.d.S);
+            pdf = float(1.0 / plan.d->S);
         } else if (plan.kind == RectPlan::Area) {
             pdf = rect_area_density(wi, d2);
         } else if (m_mesh) {
@@ -343,7 +343,7 @@ private:
     struct RectPlan {
         enum Kind { Nothing, Triangles, Area, Float, Double } kind = Triangles;
         sphrect::FloatSphericalRectangle f;
-        sphrect::SphericalRectangle d;
+        std::optional<sphrect::SphericalRectangle> d;  ///< built only below MinFloatSolidAngle (rare)
     };
     RectPlan rect_plan(Vec3 p) const {
         RectPlan plan;
@@ -366,8 +366,8 @@ private:
         if (plan.f.valid && plan.f.S >= MinFloatSolidAngle && plan.f.S <= MaxSphericalSampleArea) {
             plan.kind = RectPlan::Float;
         } else if (plan.f.valid && plan.f.S < MinFloatSolidAngle) {
-            plan.d = sphrect::SphericalRectangle(p, m_rect_s, m_rect_ex, m_rect_ey);
-            if (plan.d.valid && plan.d.S >= MinSphericalSampleArea && plan.d.S <= MaxSphericalSampleArea)
+            plan.d.emplace(p, m_rect_s, m_rect_ex, m_rect_ey);
+            if (plan.d->valid && plan.d->S >= MinSphericalSampleArea && plan.d->S <= MaxSphericalSampleArea)
                 plan.kind = RectPlan::Double;
         }
         return plan;
