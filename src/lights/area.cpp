@@ -126,8 +126,8 @@ public:
         if (plan.kind == RectPlan::Float || plan.kind == RectPlan::Double || plan.kind == RectPlan::Area) {
             // A rectangle: one direction uniform in its solid angle, or one point uniform on it.
             if (plan.kind == RectPlan::Float) {
-                if (!plan.f.sample(u, p)) return false;
-                pdf = 1.f / plan.f.S;
+                if (!plan.f->sample(u, p)) return false;
+                pdf = 1.f / plan.f->S;
             } else if (plan.kind == RectPlan::Double) {
                 if (!plan.d->sample(u, p)) return false;
                 pdf = float(1.0 / plan.d->S);
@@ -198,7 +198,7 @@ public:
         const RectPlan plan = rect_plan(ctx.p);
         if (plan.kind == RectPlan::Nothing) return 0.f;
         if (plan.kind == RectPlan::Float) {
-            pdf = 1.f / plan.f.S;
+            pdf = 1.f / plan.f->S;
         } else if (plan.kind == RectPlan::Double) {
             pdf = float(1.0 / plan.d->S);
         } else if (plan.kind == RectPlan::Area) {
@@ -342,7 +342,7 @@ private:
     /// "area" mode) go to the triangles, which decide per triangle.
     struct RectPlan {
         enum Kind { Nothing, Triangles, Area, Float, Double } kind = Triangles;
-        sphrect::FloatSphericalRectangle f;
+        std::optional<sphrect::FloatSphericalRectangle> f;  ///< not built (nor zeroed) for Area and Nothing
         std::optional<sphrect::SphericalRectangle> d;  ///< built only below MinFloatSolidAngle (rare)
     };
     RectPlan rect_plan(Vec3 p) const {
@@ -362,10 +362,10 @@ private:
             plan.kind = RectPlan::Area;
             return plan;
         }
-        plan.f = sphrect::FloatSphericalRectangle(p, m_rect);
-        if (plan.f.valid && plan.f.S >= MinFloatSolidAngle && plan.f.S <= MaxSphericalSampleArea) {
+        const sphrect::FloatSphericalRectangle &f = plan.f.emplace(p, m_rect);
+        if (f.valid && f.S >= MinFloatSolidAngle && f.S <= MaxSphericalSampleArea) {
             plan.kind = RectPlan::Float;
-        } else if (plan.f.valid && plan.f.S < MinFloatSolidAngle) {
+        } else if (f.valid && f.S < MinFloatSolidAngle) {
             plan.d.emplace(p, m_rect_s, m_rect_ex, m_rect_ey);
             if (plan.d->valid && plan.d->S >= MinSphericalSampleArea && plan.d->S <= MaxSphericalSampleArea)
                 plan.kind = RectPlan::Double;
