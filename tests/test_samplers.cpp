@@ -2,12 +2,14 @@
 // range, uniformity across pixels (chi^2), the (0, m, 2)-net property of the sobol
 // sampler's dimension pairs, and its lower integration error than independent sampling.
 #include <gtest/gtest.h>
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <vector>
 #include "sampling/owen.h"
 #include "sampling/sampler.h"
+#include "sampling/warp.h"
 #include "core/properties.h"
 #include "core/registry.h"
 
@@ -224,4 +226,40 @@ TEST(Sobol, DimensionPairsUncorrelated) {
     }
     // Independent shuffles: corr ~ N(0, 1/16), mean |corr| ~ 0.05.
     EXPECT_LT(sum_abs / pixels, 0.1);
+}
+
+// The concentric disk map computes its angle's sine and cosine by polynomials (sincos_quarter):
+// within float rounding of the map in double precision with libm, everywhere on the square
+// (edges, diagonals, the centre), and never outside the unit disk.
+TEST(Warp, ConcentricDiskMatchesTheDoubleMap) {
+    double worst = 0;
+    for (double x = -0.7853981633974483; x <= 0.7853981633974484; x += 1.0 / 4096) {
+        float s, c;
+        sincos_quarter(float(x), s, c);
+        worst = std::max({worst, std::abs(s - std::sin(double(float(x)))), std::abs(c - std::cos(double(float(x))))});
+    }
+    EXPECT_LT(worst, 1.2e-7);
+    auto reference = [](Vec2 u) {
+        const double ox = 2.0 * u.x - 1.0, oy = 2.0 * u.y - 1.0;
+        if (ox == 0 && oy == 0) return std::pair<double, double>(0, 0);
+        const bool xs = std::abs(ox) > std::abs(oy);
+        const double r = xs ? ox : oy, th = xs ? M_PI / 4 * (oy / ox) : M_PI / 2 - M_PI / 4 * (ox / oy);
+        return std::pair<double, double>(r * std::cos(th), r * std::sin(th));
+    };
+    const int n = 1024;
+    worst = 0;
+    for (int i = 0; i <= n; ++i)
+        for (int j = 0; j <= n; ++j) {
+            // Grid points (the centre, edges and both diagonals included) and one float step off them.
+            for (float eps : {0.f, 6e-8f}) {
+                const Vec2 u(std::min(OneMinusEpsilon, float(i) / n + eps), std::min(OneMinusEpsilon, float(j) / n));
+                const Vec2 d = square_to_uniform_disk_concentric(u);
+                const auto [rx, ry] = reference(u);
+                worst = std::max({worst, std::abs(d.x - rx), std::abs(d.y - ry)});
+                ASSERT_LE(double(d.x) * d.x + double(d.y) * d.y, 1.0 + 3e-7) << u.x << " " << u.y;
+            }
+        }
+    EXPECT_LT(worst, 2.5e-7);
+    const Vec3 w = square_to_cosine_hemisphere(Vec2(0.5f, 0.5f));
+    EXPECT_EQ(w.z, 1.f);
 }

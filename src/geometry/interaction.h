@@ -1,5 +1,8 @@
 // A ray's hit on a surface, with everything shading needs.
 #pragma once
+#include <emmintrin.h>
+#include <cmath>
+#include <cstdint>
 #include <limits>
 #include "core/frame.h"
 #include "core/ray.h"
@@ -56,9 +59,44 @@ struct SurfaceInteraction {
     /// Origin offset along ng to the side of direction d, robust against self-intersection
     /// (Wachter & Binder, Ray Tracing Gems ch. 6: integer ULP offsets scaled by |p|).
     Vec3 offset_origin(Vec3 d) const;
-    Ray spawn_ray(Vec3 d) const;
+    Ray spawn_ray(Vec3 d) const { return Ray(offset_origin(d), d); }
     /// Shadow ray towards point `target`, stopping just short of it.
-    Ray spawn_ray_to(Vec3 target) const;
+    Ray spawn_ray_to(Vec3 target) const {
+        const Vec3 o = offset_origin(target - p);
+        const Vec3 d = target - o;
+        const float dist = length(d);
+        return Ray(o, dist > 0.f ? d / dist : d, dist * (1.f - 1e-4f));
+    }
 };
+
+// Inline (every path vertex spawns two rays) and without branches: the sign of the offset is
+// as good as random from one vertex to the next.
+inline Vec3 SurfaceInteraction::offset_origin(Vec3 w) const {
+    // Move p off the surface along the geometric normal by its error bound, to the side of
+    // w, then round away from p so float rounding cannot pull it back (pbrt-v4 OffsetRayOrigin):
+    // per component next_float_up(po) where the offset is positive, -next_float_up(-po) where it
+    // is negative, bit for bit on finite values and infinities.
+    const float d = p_error * (std::abs(ng.x) + std::abs(ng.y) + std::abs(ng.z));
+    const Vec3 off = ng * (dot(w, ng) < 0.f ? -d : d);
+    const __m128 offv = _mm_set_ps(0.f, off.z, off.y, off.x);
+    const __m128i b = _mm_castps_si128(_mm_add_ps(_mm_set_ps(0.f, p.z, p.y, p.x), offv));
+    const __m128i o = _mm_castps_si128(offv);
+    const __m128i sign = _mm_set1_epi32(int32_t(0x80000000u)), abs_mask = _mm_set1_epi32(0x7fffffff);
+    const __m128i mag = _mm_and_si128(b, abs_mask), dir = _mm_and_si128(o, sign);
+    // One step away from zero where po has the offset's sign (none for an infinity), one
+    // towards zero where it has the other; from +-0 the smallest denormal on the offset's side.
+    const __m128i away = _mm_cmpeq_epi32(_mm_and_si128(b, sign), dir);
+    const __m128i inf = _mm_cmpeq_epi32(mag, _mm_set1_epi32(0x7f800000));
+    __m128i step = _mm_add_epi32(_mm_and_si128(away, _mm_set1_epi32(2)), _mm_set1_epi32(-1));
+    step = _mm_andnot_si128(_mm_and_si128(away, inf), step);
+    __m128i r = _mm_add_epi32(b, step);
+    const __m128i zero = _mm_cmpeq_epi32(mag, _mm_setzero_si128());
+    r = _mm_or_si128(_mm_andnot_si128(zero, r), _mm_and_si128(zero, _mm_or_si128(dir, _mm_set1_epi32(1))));
+    const __m128i keep = _mm_cmpeq_epi32(_mm_and_si128(o, abs_mask), _mm_setzero_si128());  // no offset
+    r = _mm_or_si128(_mm_andnot_si128(keep, r), _mm_and_si128(keep, b));
+    alignas(16) float out[4];
+    _mm_store_ps(out, _mm_castsi128_ps(r));
+    return Vec3(out[0], out[1], out[2]);
+}
 
 }  // namespace meso

@@ -85,22 +85,25 @@ void MeshShape::fill_interaction(const Ray &ray, float t, uint32_t prim, float b
     si.ng = ng;
     si.ns = ns;
 
-    // dp/du, dp/dv from the triangle's uv parameterisation.
+    // dp/du, dp/dv from the triangle's uv parameterisation (in locals: stored once).
     Vec2 duv02 = uv0 - uv2, duv12 = uv1 - uv2;
     Vec3 dp02 = p0 - p2, dp12 = p1 - p2;
     float det = duv02.x * duv12.y - duv02.y * duv12.x;
     bool ok = std::abs(det) > 1e-12f;
+    Vec3 dpdu, dpdv;
     if (ok) {
         float inv = 1.f / det;
-        si.dpdu = (dp02 * duv12.y - dp12 * duv02.y) * inv;
-        si.dpdv = (dp12 * duv02.x - dp02 * duv12.x) * inv;
-        ok = is_finite(si.dpdu) && is_finite(si.dpdv) && length_squared(cross(si.dpdu, si.dpdv)) > 0.f;
+        dpdu = (dp02 * duv12.y - dp12 * duv02.y) * inv;
+        dpdv = (dp12 * duv02.x - dp02 * duv12.x) * inv;
+        ok = is_finite(dpdu) && is_finite(dpdv) && length_squared(cross(dpdu, dpdv)) > 0.f;
     }
-    if (!ok) coordinate_system(ng, si.dpdu, si.dpdv);
+    if (!ok) coordinate_system(ng, dpdu, dpdv);
     if (!m_mesh.tangents.empty()) {
         Vec3 tg = m_mesh.tangents[i0] * b0 + m_mesh.tangents[i1] * bu + m_mesh.tangents[i2] * bv;
-        if (length_squared(tg) > 0.f) si.dpdu = normalize(tg) * length(si.dpdu);
+        if (length_squared(tg) > 0.f) dpdu = normalize(tg) * length(dpdu);
     }
+    si.dpdu = dpdu;
+    si.dpdv = dpdv;
 
     si.bary = Vec2(bu, bv);
     si.dndu = si.dndv = Vec3();  // fill_normal_derivatives, on demand

@@ -58,6 +58,7 @@
 #include <fmt/format.h>
 #include <algorithm>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <vector>
 #include "core/error.h"
 #include "geometry/shape.h"
@@ -125,18 +126,19 @@ public:
         if (plan.kind == RectPlan::Float || plan.kind == RectPlan::Double || plan.kind == RectPlan::Area) {
             // A rectangle: one direction uniform in its solid angle, or one point uniform on it.
             if (plan.kind == RectPlan::Float) {
-                Vec2 ab;
-                if (!plan.f.sample(u, p, ab)) return false;
-                pdf = 1.f / plan.f.S;
+                if (!plan.f->sample(u, p)) return false;
+                pdf = 1.f / plan.f->S;
             } else if (plan.kind == RectPlan::Double) {
-                if (!plan.d.sample(u, p)) return false;
-                pdf = float(1.0 / plan.d.S);
+                if (!plan.d->sample(u, p)) return false;
+                pdf = float(1.0 / plan.d->S);
             } else {
                 p = m_rect.s + m_rect.x * (u.x * m_rect.lx) + m_rect.y * (u.y * m_rect.ly);
             }
+            // The emission normal is m_rect_n over the whole rectangle unless vertex normals
+            // flip it per point; the triangle and its barycentrics only for those, textures and masks.
             size_t t = 0;
-            n = m_tri_normal[0];
-            if (m_texture || m_shape->alpha_mask || !m_mesh->normals.empty()) {
+            n = m_rect_n;
+            if (m_texture || m_shape->alpha_mask || !m_rect_n_uniform) {
                 double b[3] = {1, 0, 0};
                 t = locate(p, b);
                 n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
@@ -196,9 +198,9 @@ public:
         const RectPlan plan = rect_plan(ctx.p);
         if (plan.kind == RectPlan::Nothing) return 0.f;
         if (plan.kind == RectPlan::Float) {
-            pdf = 1.f / plan.f.S;
+            pdf = 1.f / plan.f->S;
         } else if (plan.kind == RectPlan::Double) {
-            pdf = float(1.0 / plan.d.S);
+            pdf = float(1.0 / plan.d->S);
         } else if (plan.kind == RectPlan::Area) {
             pdf = rect_area_density(wi, d2);
         } else if (m_mesh) {
@@ -340,8 +342,8 @@ private:
     /// "area" mode) go to the triangles, which decide per triangle.
     struct RectPlan {
         enum Kind { Nothing, Triangles, Area, Float, Double } kind = Triangles;
-        sphrect::FloatSphericalRectangle f;
-        sphrect::SphericalRectangle d;
+        std::optional<sphrect::FloatSphericalRectangle> f;  ///< not built (nor zeroed) for Area and Nothing
+        std::optional<sphrect::SphericalRectangle> d;  ///< built only below MinFloatSolidAngle (rare)
     };
     RectPlan rect_plan(Vec3 p) const {
         RectPlan plan;
@@ -360,12 +362,12 @@ private:
             plan.kind = RectPlan::Area;
             return plan;
         }
-        plan.f = sphrect::FloatSphericalRectangle(p, m_rect);
-        if (plan.f.valid && plan.f.S >= MinFloatSolidAngle && plan.f.S <= MaxSphericalSampleArea) {
+        const sphrect::FloatSphericalRectangle &f = plan.f.emplace(p, m_rect);
+        if (f.valid && f.S >= MinFloatSolidAngle && f.S <= MaxSphericalSampleArea) {
             plan.kind = RectPlan::Float;
-        } else if (plan.f.valid && plan.f.S < MinFloatSolidAngle) {
-            plan.d = sphrect::SphericalRectangle(p, m_rect_s, m_rect_ex, m_rect_ey);
-            if (plan.d.valid && plan.d.S >= MinSphericalSampleArea && plan.d.S <= MaxSphericalSampleArea)
+        } else if (f.valid && f.S < MinFloatSolidAngle) {
+            plan.d.emplace(p, m_rect_s, m_rect_ex, m_rect_ey);
+            if (plan.d->valid && plan.d->S >= MinSphericalSampleArea && plan.d->S <= MaxSphericalSampleArea)
                 plan.kind = RectPlan::Double;
         }
         return plan;
@@ -430,7 +432,14 @@ private:
                     if (std::abs(dot(ex, ey)) > tol || length_squared(corners[a] + ex + ey - corners[d]) > tol) continue;
                     m_rect_s = corners[a], m_rect_ex = ex, m_rect_ey = ey, m_is_rect = true;
                     m_rect = sphrect::RectFrame(m_rect_s, m_rect_ex, m_rect_ey);
-                    m_rect_front = m_two_sided ? 0 : emitting_side();
+                    const int side = emitting_side();
+                    m_rect_front = m_two_sided ? 0 : side;
+                    // Without vertex normals, or with vertex normals that never flip it, the
+                    // emission normal is triangle 0's normal on the emitting side everywhere
+                    // (triangle 1's differs from it by rounding: the corners are coplanar).
+                    m_rect_n = m_tri_normal[0];
+                    if (!m_mesh->normals.empty() && side != 0 && dot(m_rect_n, m_rect.z) * float(side) < 0.f) m_rect_n = -m_rect_n;
+                    m_rect_n_uniform = m_mesh->normals.empty() || side != 0;
                     return;
                 }
     }
@@ -448,6 +457,8 @@ private:
     Vec3 m_rect_s, m_rect_ex, m_rect_ey;
     sphrect::RectFrame m_rect;       ///< the rectangle's frame (float sampling)
     int m_rect_front = 0;            ///< +1 / -1: only the side of +z / -z emits; 0: both or unknown
+    Vec3 m_rect_n;                   ///< the emission normal where m_rect_n_uniform
+    bool m_rect_n_uniform = false;   ///< the emission normal is the same at every point (no locate())
 };
 
 MESO_REGISTER_LIGHT("area", "diffuse area emitter on a shape (radiance: constant or texture, two_sided, sampling)",

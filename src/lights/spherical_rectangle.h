@@ -149,7 +149,9 @@ struct FloatSphericalRectangle {
 
     /// The point of the rectangle in the direction sampled by u (density 1 / S in solid angle),
     /// and its coordinates (a, b) in [0, 1]^2 along the edges.
-    bool sample(Vec2 u, Vec3 &p, Vec2 &ab) const {
+    bool sample(Vec2 u, Vec3 &p, Vec2 &ab) const { return sample(u, p, &ab); }
+    /// The same; `ab` only where non-null (two divisions less).
+    bool sample(Vec2 u, Vec3 &p, Vec2 *ab = nullptr) const {
         if (!valid) return false;
         // e^{i k} = conj(e^{i g2} e^{i g3}) normalised; b0, b1 from the scaled y0, y1.
         const float inv23 = 1.f / std::sqrt(ek_c * ek_c + ek_s * ek_s);
@@ -170,7 +172,7 @@ struct FloatSphericalRectangle {
         float yv = hv2 < OneMinusEpsilon ? hv * std::sqrt(dd2 / (1.f - hv2)) : (hv > 0.f ? y1 : y0);
         yv = std::clamp(yv, y0, y1);
         p = o + x * xu + y * yv - z * h;
-        ab = Vec2(std::clamp((xu - x0) / (x1 - x0), 0.f, 1.f), std::clamp((yv - y0) / (y1 - y0), 0.f, 1.f));
+        if (ab) *ab = Vec2(std::clamp((xu - x0) / (x1 - x0), 0.f, 1.f), std::clamp((yv - y0) / (y1 - y0), 0.f, 1.f));
         return std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
     }
 };

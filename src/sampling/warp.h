@@ -4,18 +4,27 @@
 
 namespace meso {
 
+/// sin and cos of x in [-pi/4, pi/4] by Taylor polynomials of degree 9 / 10 (truncation below
+/// 2e-9: what is left is float rounding, within 1.2e-7 of the exact values; test
+/// Warp.ConcentricDiskMatchesTheDoubleMap): no libm call.
+inline void sincos_quarter(float x, float &s, float &c) {
+    const float z = x * x;
+    s = x + x * z * (-1.6666667e-1f + z * (8.3333333e-3f + z * (-1.9841270e-4f + z * 2.7557319e-6f)));
+    c = 1.f + z * (-0.5f + z * (4.1666667e-2f + z * (-1.3888889e-3f + z * (2.4801587e-5f + z * -2.7557319e-7f))));
+}
+
+/// Shirley and Chiu's concentric map; the angle, in [-pi/4, pi/4] from the nearer axis, by
+/// sincos_quarter.
 inline Vec2 square_to_uniform_disk_concentric(Vec2 u) {
     float ox = 2.f * u.x - 1.f, oy = 2.f * u.y - 1.f;
     if (ox == 0.f && oy == 0.f) return {0.f, 0.f};
-    float r, theta;
-    if (std::abs(ox) > std::abs(oy)) {
-        r = ox;
-        theta = PiOver4 * (oy / ox);
-    } else {
-        r = oy;
-        theta = PiOver2 - PiOver4 * (ox / oy);
+    float s, c;
+    if (std::abs(ox) > std::abs(oy)) {  // theta = pi/4 oy / ox
+        sincos_quarter(PiOver4 * (oy / ox), s, c);
+        return {ox * c, ox * s};
     }
-    return {r * std::cos(theta), r * std::sin(theta)};
+    sincos_quarter(PiOver4 * (ox / oy), s, c);  // theta = pi/2 - pi/4 ox / oy
+    return {oy * s, oy * c};
 }
 
 /// Cosine-weighted hemisphere (z up); pdf = cos(theta)/pi.
