@@ -67,6 +67,7 @@ Inputs load_inputs(const PipelineOptions &o) {
     if (in.base->is_delta_only() || in.base->has_transmission())
         throw MesoError("--base: the base BRDF must be reflection-only and not purely specular (diffuse, rough "
                         "conductor or plastic)");
+    if (o.flow_lobes) make_lobe_base(in.base, in.base_json, "--base");  // refuses other bases before the work
     const HeightMap &map = in.map;
     for (int f : o.scales)
         if (map.width % f || map.height % f || (map.width / f) % o.M || (map.height / f) % o.M)
@@ -95,7 +96,7 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
     model.tile_size = o.tile_size;
     model.base = in.base_json;
     model.lobes = o.lobes;
-    model.quadrature = {o.quad_polar, o.quad_azimuth, o.flow_projected_area};
+    model.quadrature = {o.quad_polar, o.quad_azimuth, o.flow_projected_area && !o.flow_lobes, o.flow_lobes};
     model.manifest["meso_version"] = MESO_VERSION;
     model.manifest["input"] = in.record;
     model.manifest["parameters"] = {{"scales", o.scales}, {"M", o.M}, {"N", o.N}, {"lobes", o.lobes},
@@ -105,7 +106,8 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
                                     {"max_rounds", o.max_rounds}, {"max_seconds", o.max_seconds}, {"epsilon", o.epsilon}, {"seed", o.seed},
                                     {"ndf_samples_per_cell", o.samples_per_cell},
                                     {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
-                                    {"flow_projected_area", o.flow_projected_area},
+                                    {"flow_projected_area", o.flow_projected_area && !o.flow_lobes},
+                                    {"flow", flow_name(model.quadrature)},
                                     {"lsq_w", kLsqW}};
     return model;
 }
@@ -241,7 +243,8 @@ PrefilteredLevel build_level(const PipelineOptions &o, int F, const Inputs &in, 
                  L.h_low.width, L.h_low.height, timing["least_squares_s"].get<double>(), L.ndf.size(),
                  timing["svndf_fit_s"].get<double>(), mean_it / double(L.ndf.size()));
     auto t0 = Clock::now();
-    auto low_mat = std::make_shared<SvMultiLobe>(in.base, L.ndf, L.h_low.width, L.h_low.height, quadrature);
+    auto low_mat = std::make_shared<SvMultiLobe>(in.base, L.ndf, L.h_low.width, L.h_low.height, quadrature,
+                                                 in.base_json, "--base");
     timing["multilobe_build_s"] = since(t0);
     const Heightfield low_field(L.h_low, float(o.height_scale * double(L.h_low.width) / o.tile_size), 0.f);
     t0 = Clock::now();

@@ -47,6 +47,7 @@ struct PipelineOptions {
     uint64_t seed = 1;         ///< --seed of the estimators
     int quad_polar = 3, quad_azimuth = 4;  ///< --quadrature, --quadrature-azimuth: f'_low nodes
     bool flow_projected_area = false;      ///< --flow visible (true) or eq5 (false)
+    bool flow_lobes = false;               ///< --flow lobes: the closed form of lobe_brdf.h
     bool quiet = false;        ///< -q: no progress bar
 };
 

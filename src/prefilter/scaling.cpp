@@ -275,11 +275,12 @@ struct ScalingEstimator::Task {
         Vertex v;
         if (!start_line(est.m_low, patch_of(est.m_low), k, K, true, wo, v, low_lines)) return false;
         const Vec3 org = spawn_origin(v);
-        const MultiLobeBrdf &fl_patch = est.m_low_mat.patch(v.ctx.uv);
-        if (J == 0)
-            fl_patch.eval_batch(v.ctx, wo, wi.data(), B, fl.data());
+        if (const SvLobeBrdf *lf = est.m_low_mat.lobe_form())  // closed form: deterministic and cheap
+            lf->eval_batch(v.ctx, wo, wi.data(), B, fl.data());
+        else if (J == 0)
+            est.m_low_mat.patch(v.ctx.uv).eval_batch(v.ctx, wo, wi.data(), B, fl.data());
         else
-            sample_f_low_nodes(fl_patch, v.ctx, wo, J);
+            sample_f_low_nodes(est.m_low_mat.patch(v.ctx.uv), v.ctx, wo, J);
         for (int b = 0; b < B; ++b) {
             const Vec3 &w = wi[size_t(b)];
             const Spectrum &f = fl[size_t(b)];
