@@ -48,9 +48,9 @@
 // Flow form. A model made with `meso prefilter --flow lobes` (manifest parameters.flow) shades with
 // the closed-form f'_low of prefilter/lobe_brdf.h, the one its T and S were fitted to: one
 // base-like lobe per vMF lobe (roughness widened to α'² = α² + 2/κ; a diffuse base convolved
-// in closed form), deterministic, exact pdf; "estimator" must stay "quadrature" there (there are
-// no nodes to pick). The optional "flow" parameter states the form a scene expects and is
-// refused when the model was made with another.
+// in closed form), deterministic, exact pdf; "estimator" has no effect there (there are no nodes
+// to pick: every estimator is the closed form). The optional "flow" parameter states the form a
+// scene expects and is refused when the model was made with another.
 //
 // Base material. By default, the one the model was made with (manifest "input"."base", a
 // meso material object); relative file names inside it (textures) resolve against the
@@ -367,13 +367,13 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
         p.fail("flow", fmt::format("the model '{}' was made with --flow {} (its tables are fitted to that f'_low), not "
                                    "\"{}\": remake it with `meso prefilter --flow {}` or drop \"flow\"",
                                    dir, model_flow, p.get_string("flow"), p.get_string("flow")));
-    if (c.model->quadrature.lobes && c.estimator != Estimator::Quadrature)
-        p.fail("estimator", fmt::format("\"{}\" samples quadrature nodes; the model '{}' uses the closed-form "
-                                        "--flow lobes (deterministic and cheap): use \"quadrature\" or drop it",
-                                        estimator, dir));
     if (c.estimator == Estimator::Stratified) {
         c.set_nodes = p.get_int("estimator_nodes", kDefaultSetNodes, Range::closed(1, MultiLobeBrdf::kMaxSetNodes));
         estimator += fmt::format(" ({} nodes)", c.set_nodes);
+    }
+    if (c.model->quadrature.lobes) {  // nothing to estimate: every estimator is the closed form itself
+        c.estimator = Estimator::Quadrature;
+        estimator = "closed form (--flow lobes)";
     }
     if (p.has("tiling")) std::tie(c.tu, c.tv) = p.get_tiling();
     if (c.model->wrap != WrapMode::Repeat) c.tu *= 0.5f, c.tv *= 0.5f;  // the model spans the map's 2 x 2 extension

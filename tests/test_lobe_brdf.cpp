@@ -10,6 +10,7 @@
 #include <memory>
 #include <string>
 #include <vector>
+#include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include "bsdf/chi2.h"
 #include "core/error.h"
@@ -72,7 +73,7 @@ TEST(LobeBrdf, TablesMatchTheExactIntegrals) {
     EXPECT_NEAR(vmf_clamped_cosine(0.3f, 0.0), 0.25, 1e-5);
     EXPECT_NEAR(vmf_cap_mass(-0.7f, 0.0), 0.5, 1e-5);
     EXPECT_NEAR(vmf_clamped_cosine(0.6f, std::numeric_limits<double>::infinity()), 0.6, 1e-6);
-    double worst_c = 0.0, worst_h = 0.0;
+    double worst_c = 0.0, worst_h = 0.0, worst_h_away = 0.0;
     for (double kappa : {0.0, 0.3, 2.0, 7.5, 40.0, 300.0, 5e3, 1e5, 1e9})
         for (double t = -1.0; t <= 1.0; t += 0.0371) {
             const Vec3 mu(float(std::sqrt(std::max(0.0, 1.0 - t * t))), 0.f, float(t));
@@ -81,11 +82,16 @@ TEST(LobeBrdf, TablesMatchTheExactIntegrals) {
             ASSERT_TRUE(std::isfinite(ct) && std::isfinite(ht) && ct >= 0.f && ht >= 0.f && ht <= 1.f);
             worst_c = std::max(worst_c, std::abs(ct - c));
             worst_h = std::max(worst_h, std::abs(ht - h));
+            if (std::abs(t) > 0.05) worst_h_away = std::max(worst_h_away, std::abs(ht - h));
         }
-    std::printf("C table: max abs error %.2e (values 0..1); H table: %.2e\n", worst_c, worst_h);
-    // Bilinear in a 129 x 65 grid: sharp only where κ is large and |t| < 1/sqrt(κ).
+    std::printf("C table: max abs error %.2e (values 0..1); H table: %.2e, %.2e for |t| > 0.05\n", worst_c, worst_h,
+                worst_h_away);
+    // Bilinear in a 129 x 65 grid: sharp only where κ is large and |t| < 1/sqrt(κ). H weighs the
+    // lobes (the pdf uses the same table, so sampling stays exact); its κ → ∞ step is ramped over
+    // one cell of t (1/64).
     EXPECT_LT(worst_c, 0.01);
-    EXPECT_LT(worst_h, 0.2);  // the step of κ → ∞ is ramped over one cell of t (1/64)
+    EXPECT_LT(worst_h, 0.5);
+    EXPECT_LT(worst_h_away, 0.02);
 }
 
 TEST(LobeBrdf, Chi2SamplingMatchesPdf) {
@@ -178,8 +184,9 @@ TEST(LobeBrdf, ExtremeInputsAreFinite) {
                 PCG32 rng(3, 4);
                 for (int k = 0; k < 200; ++k) {
                     BSDFSample s;
-                    if (f->sample(kCtx, grazing, rng.next_float(), Vec2(rng.next_float(), rng.next_float()), s))
+                    if (f->sample(kCtx, grazing, rng.next_float(), Vec2(rng.next_float(), rng.next_float()), s)) {
                         ASSERT_TRUE(s.weight.is_finite() && s.pdf > 0.f && std::isfinite(s.pdf)) << b;
+                    }
                 }
             }
 }

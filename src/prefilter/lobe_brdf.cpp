@@ -16,10 +16,11 @@ constexpr float kPiF = 3.14159265358979f;
 constexpr double kPiD = 3.14159265358979323846;
 
 /// C(t, κ) and H(t, κ) on a grid: t ∈ [−1, 1] in kT nodes (one at t = 0, where κ → ∞ kinks),
-/// rows s = κ / (κ + kRowScale) ∈ [0, 1] in kK nodes (the last row is κ = ∞: max(0, t) and the step).
+/// rows s = √κ / (√κ + kRowScale) ∈ [0, 1] in kK nodes (the last row is κ = ∞: max(0, t) and the
+/// step; the one before κ ≈ 1.6e4, where the kinks are narrower than a column).
 struct VmfTables {
     static constexpr int kT = 129, kK = 65;
-    static constexpr double kRowScale = 4.0;
+    static constexpr double kRowScale = 2.0;
     std::vector<float> C, H;  ///< row-major [row * kT + column]
     VmfTables() : C(size_t(kT) * kK), H(size_t(kT) * kK) {
         for (int r = 0; r < kK; ++r)
@@ -31,14 +32,14 @@ struct VmfTables {
                     H[k] = t > 0.0 ? 1.f : t < 0.0 ? 0.f : 0.5f;
                     continue;
                 }
-                const double s = double(r) / (kK - 1), kappa = kRowScale * s / (1.0 - s);
+                const double s = double(r) / (kK - 1), kappa = std::pow(kRowScale * s / (1.0 - s), 2.0);
                 const Vec3 mu(float(std::sqrt(std::max(0.0, 1.0 - t * t))), 0.f, float(t));
                 C[k] = float(vmf_projected_area(mu, kappa));
                 H[k] = float(vmf_cap_mass(mu, kappa));
             }
     }
     static float row(double kappa) {
-        const double s = std::isinf(kappa) ? 1.0 : kappa / (kappa + kRowScale);
+        const double q = std::sqrt(std::max(0.0, kappa)), s = std::isinf(kappa) ? 1.0 : q / (q + kRowScale);
         return float(std::clamp(s, 0.0, 1.0) * (kK - 1));
     }
     static float lookup(const std::vector<float> &tab, float t, float row) {
