@@ -310,7 +310,7 @@ TEST(CmdPrefilter, BadInputIsNamed) {
     EXPECT_NE(err({"--generator", "fbm", "--interreflections", "maybe", "-o", "/tmp/x"})
                   .find(R"(--interreflections: expected "on" or "off", got "maybe")"),
               std::string::npos);
-    EXPECT_NE(err({"--generator", "fbm", "--flow", "x", "-o", "/tmp/x"}).find(R"(--flow: expected "visible" or "eq5", got "x")"),
+    EXPECT_NE(err({"--generator", "fbm", "--flow", "x", "-o", "/tmp/x"}).find(R"(--flow: expected "visible", "eq5", "lobes" or "auto", got "x")"),
               std::string::npos);
     EXPECT_NE(err({"--generator", "fbm", "--base", R"({"type": "conductor", "material": "Au", "alpha": 0})", "-o", "/tmp/x"})
                   .find("--base"),
