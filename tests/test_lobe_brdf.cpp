@@ -138,7 +138,7 @@ TEST(LobeBrdf, SharpLobeIsTheBase) {
 TEST(LobeBrdf, ClosedFormAgainstEq5Quadrature) {
     // The difference is what T and S absorb when the model is fitted with this form: stated
     // here, bounded loosely (finite, the right order), never snapshotted.
-    std::printf("closed form / dense eq. 5, 27 direction pairs (mean and worst ratio of sums over the pairs):\n");
+    std::printf("closed form / dense eq. 5: ratio of the sums over 27 direction pairs, two lobes of equal kappa:\n");
     for (const char *b : {kBeckmann, kDiffuse})
         for (double kappa : {1e9, 1e4, 300.0, 30.0, 3.0, 0.3}) {
             auto base = make_material(b);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
+#include <smmintrin.h>
 #include "core/error.h"
 #include "core/frame.h"
 #include "core/properties.h"
@@ -56,23 +57,42 @@ const VmfTables &vmf_tables() {
     return t;
 }
 
-/// Smith Λ of the lobe for a direction at cosine z to μ: Walter et al. 2007's rational form for
-/// Beckmann (eq. 27), the exact one for GGX.
-inline float lobe_lambda(MicrofacetType type, float alpha, float z) {
-    const float z2 = z * z, s2 = std::max(0.f, 1.f - z2);
-    if (type == MicrofacetType::GGX) return 0.5f * (std::sqrt(1.f + alpha * alpha * s2 / z2) - 1.f);
-    const float a = z / (alpha * std::sqrt(s2));
-    if (!(a < 1.6f)) return 0.f;
-    return (1.f - 1.259f * a + 0.396f * a * a) / (3.535f * a + 2.181f * a * a);
+/// e^x for x <= 0 in four lanes (Cephes' expf: 2^n times a degree-6 polynomial on
+/// [−ln2/2, ln2/2]; relative error ~2e-7; 0 below −87). Used by eval AND pdf, so they agree.
+inline __m128 exp_nonpositive(__m128 x) {
+    const __m128 lo = _mm_set1_ps(-87.f);
+    const __m128 under = _mm_cmplt_ps(x, lo);
+    x = _mm_max_ps(x, lo);
+    const __m128 n = _mm_floor_ps(_mm_add_ps(_mm_mul_ps(x, _mm_set1_ps(1.44269504088896341f)), _mm_set1_ps(0.5f)));
+    const __m128 r = _mm_sub_ps(_mm_sub_ps(x, _mm_mul_ps(n, _mm_set1_ps(0.693359375f))),
+                                _mm_mul_ps(n, _mm_set1_ps(-2.12194440e-4f)));
+    __m128 p = _mm_set1_ps(1.9875691500e-4f);
+    for (float k : {1.3981999507e-3f, 8.3334519073e-3f, 4.1665795894e-2f, 1.6666665459e-1f, 5.0000001201e-1f})
+        p = _mm_add_ps(_mm_mul_ps(p, r), _mm_set1_ps(k));
+    p = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(p, r), r), r), _mm_set1_ps(1.f));
+    const __m128i e = _mm_slli_epi32(_mm_add_epi32(_mm_cvtps_epi32(n), _mm_set1_epi32(127)), 23);
+    return _mm_andnot_ps(under, _mm_mul_ps(p, _mm_castsi128_ps(e)));
 }
 
-/// D_α'(h) of the lobe at c2 = (μ·h)², normalised as ∫ D (m·μ) dm = 1.
-inline float lobe_D(MicrofacetType type, const SvLobeBrdf::Lobe &l, float c2) {
-    if (type == MicrofacetType::GGX) {
-        const float d = c2 * (l.alpha * l.alpha - 1.f) + 1.f;
-        return l.d_norm / (d * d);
-    }
-    return l.d_norm * std::exp(-(1.f - c2) / c2 * l.inv_a2) / (c2 * c2);
+/// Smith Λ of four lobes for directions at cosines z to μ: Walter et al. 2007's rational form for
+/// Beckmann (eq. 27), the exact one for GGX. Lanes with z <= 0 give garbage (masked by the caller).
+inline __m128 lambda4(bool ggx, __m128 alpha, __m128 a2, __m128 z) {
+    const __m128 one = _mm_set1_ps(1.f), z2 = _mm_mul_ps(z, z);
+    const __m128 s2 = _mm_max_ps(_mm_setzero_ps(), _mm_sub_ps(one, z2));
+    if (ggx)
+        return _mm_mul_ps(_mm_set1_ps(0.5f),
+                          _mm_sub_ps(_mm_sqrt_ps(_mm_add_ps(one, _mm_div_ps(_mm_mul_ps(a2, s2), z2))), one));
+    const __m128 a = _mm_div_ps(z, _mm_mul_ps(alpha, _mm_sqrt_ps(s2)));  // +inf at z = 1: Λ = 0 below
+    const __m128 num = _mm_add_ps(_mm_sub_ps(one, _mm_mul_ps(_mm_set1_ps(1.259f), a)),
+                                  _mm_mul_ps(_mm_set1_ps(0.396f), _mm_mul_ps(a, a)));
+    const __m128 den = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(3.535f), a), _mm_mul_ps(_mm_set1_ps(2.181f), _mm_mul_ps(a, a)));
+    return _mm_and_ps(_mm_cmplt_ps(a, _mm_set1_ps(1.6f)), _mm_div_ps(num, den));
+}
+
+inline float hsum(__m128 v) {
+    v = _mm_add_ps(v, _mm_movehl_ps(v, v));
+    v = _mm_add_ss(v, _mm_shuffle_ps(v, v, 1));
+    return _mm_cvtss_f32(v);
 }
 
 /// The probe of make_lobe_base: wo and wi mirrored about z at cosine c (so h = z and ωi·h = c).
@@ -204,12 +224,30 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
         }
     }
     m_first.push_back(uint32_t(m_lobes.size()));
+    // The same lobes by component, four per block.
+    m_first_block.reserve(m_first.size());
+    for (size_t k = 0; k + 1 < m_first.size(); ++k) {
+        m_first_block.push_back(uint32_t(m_blocks.size()));
+        for (uint32_t j = m_first[k]; j < m_first[k + 1]; ++j) {
+            if ((j - m_first[k]) % 4 == 0) m_blocks.emplace_back();
+            LobeBlock &B = m_blocks.back();
+            const Lobe &l = m_lobes[j];
+            const int q = int((j - m_first[k]) % 4);
+            B.mx[q] = l.mu.x, B.my[q] = l.mu.y, B.mz[q] = l.mu.z, B.c[q] = l.c;
+            B.alpha[q] = l.alpha, B.a2[q] = l.alpha * l.alpha, B.inv_a2[q] = l.inv_a2, B.d_norm[q] = l.d_norm;
+        }
+    }
+    m_first_block.push_back(uint32_t(m_blocks.size()));
+}
+
+size_t SvLobeBrdf::patch_index(Vec2 uv) const {
+    const float u = uv.x - std::floor(uv.x), v = uv.y - std::floor(uv.y);
+    const int i = std::clamp(int(u * float(m_w)), 0, m_w - 1), j = std::clamp(int(v * float(m_h)), 0, m_h - 1);
+    return size_t(j) * size_t(m_w) + size_t(i);
 }
 
 std::pair<const SvLobeBrdf::Lobe *, const SvLobeBrdf::Lobe *> SvLobeBrdf::lobes(Vec2 uv) const {
-    const float u = uv.x - std::floor(uv.x), v = uv.y - std::floor(uv.y);
-    const int i = std::clamp(int(u * float(m_w)), 0, m_w - 1), j = std::clamp(int(v * float(m_h)), 0, m_h - 1);
-    const size_t k = size_t(j) * size_t(m_w) + size_t(i);
+    const size_t k = patch_index(uv);
     const Lobe *base = m_lobes.data();
     return {base + m_first[k], base + m_first[k + 1]};
 }
@@ -219,27 +257,52 @@ Spectrum SvLobeBrdf::lambert(const ShadingContext &ctx) const {
     return m_base.material->eval(ctx, z, z);
 }
 
-Spectrum SvLobeBrdf::eval_pdf_microfacet(const Lobe *b, const Lobe *e, const Vec3 &wo, const Vec3 &wi,
-                                         float *pdf) const {
+Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
     const Vec3 h = normalize(wo + wi);
     const float dwh = dot(wo, h);
     if (!(dwh > 0.f)) return Spectrum(0.f);
-    const MicrofacetType type = m_base.type;
-    float sum = 0.f, psum = 0.f, ptot = 0.f;
-    for (const Lobe *l = b; l != e; ++l) {
-        const float lo = dot(l->mu, wo);
-        if (!(lo > 0.f)) continue;
-        ptot += l->c;
-        const float li = dot(l->mu, wi), ch = dot(l->mu, h), c2 = ch * ch;
-        if (!(li > 0.f) || !(ch > 0.f) || !(c2 > 1e-12f)) continue;
-        const float D = lobe_D(type, *l, c2);
-        psum += l->c * D * ch;
-        const float G = 1.f / (1.f + lobe_lambda(type, l->alpha, lo) + lobe_lambda(type, l->alpha, li));
-        sum += l->c * D * G / (4.f * lo);
+    // Four lobes per step (SSE); lanes that fail a condition are masked to 0 after the fact, so
+    // the infinities and NaNs of their divisions never reach the sums.
+    const bool ggx = m_base.type == MicrofacetType::GGX;
+    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f);
+    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
+    const __m128 ix = _mm_set1_ps(wi.x), iy = _mm_set1_ps(wi.y), iz = _mm_set1_ps(wi.z);
+    const __m128 hx = _mm_set1_ps(h.x), hy = _mm_set1_ps(h.y), hz = _mm_set1_ps(h.z);
+    __m128 sum = zero, psum = zero, ptot = zero;
+    for (uint32_t b = m_first_block[patch]; b < m_first_block[patch + 1]; ++b) {
+        const LobeBlock &B = m_blocks[b];
+        const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz), c = _mm_load_ps(B.c);
+        auto dot4 = [&](__m128 x, __m128 y, __m128 z) {
+            return _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, x), _mm_mul_ps(my, y)), _mm_mul_ps(mz, z));
+        };
+        const __m128 lo = dot4(ox, oy, oz), li = dot4(ix, iy, iz), ch = dot4(hx, hy, hz);
+        const __m128 faces = _mm_cmpgt_ps(lo, zero);
+        ptot = _mm_add_ps(ptot, _mm_and_ps(faces, c));
+        const __m128 c2 = _mm_mul_ps(ch, ch);
+        const __m128 ok = _mm_and_ps(_mm_and_ps(faces, _mm_cmpgt_ps(li, zero)),
+                                     _mm_and_ps(_mm_cmpgt_ps(ch, zero), _mm_cmpgt_ps(c2, _mm_set1_ps(1e-12f))));
+        if (_mm_movemask_ps(ok) == 0) continue;
+        const __m128 a2 = _mm_load_ps(B.a2), dn = _mm_load_ps(B.d_norm);
+        __m128 D;
+        if (ggx) {
+            const __m128 d = _mm_add_ps(_mm_mul_ps(c2, _mm_sub_ps(a2, one)), one);
+            D = _mm_div_ps(dn, _mm_mul_ps(d, d));
+        } else {
+            const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
+            D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(_mm_mul_ps(_mm_sub_ps(zero, t2), _mm_load_ps(B.inv_a2)))),
+                           _mm_mul_ps(c2, c2));
+        }
+        D = _mm_and_ps(ok, D);
+        psum = _mm_add_ps(psum, _mm_mul_ps(_mm_mul_ps(c, D), ch));
+        const __m128 al = _mm_load_ps(B.alpha);
+        const __m128 G = _mm_div_ps(one, _mm_add_ps(one, _mm_add_ps(lambda4(ggx, al, a2, lo), lambda4(ggx, al, a2, li))));
+        const __m128 term = _mm_div_ps(_mm_mul_ps(_mm_mul_ps(c, D), G), _mm_mul_ps(_mm_set1_ps(4.f), lo));
+        sum = _mm_add_ps(sum, _mm_and_ps(ok, term));
     }
-    if (pdf) *pdf = ptot > 0.f && std::isfinite(psum) ? psum / (ptot * 4.f * dwh) : 0.f;
-    if (!(sum > 0.f) || !std::isfinite(sum)) return Spectrum(0.f);
-    return m_base.fresnel_at(dot(wi, h)) * sum;
+    const float s = hsum(sum), ps = hsum(psum), pt = hsum(ptot);
+    if (pdf) *pdf = pt > 0.f && std::isfinite(ps) ? ps / (pt * 4.f * dwh) : 0.f;
+    if (!(s > 0.f) || !std::isfinite(s)) return Spectrum(0.f);
+    return m_base.fresnel_at(dot(wi, h)) * s;
 }
 
 Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, const Lobe *e, const Vec3 &wo,
@@ -262,9 +325,9 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, 
 Spectrum SvLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
     if (pdf) *pdf = 0.f;
     if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+    if (m_base.kind == LobeBase::Kind::Microfacet) return eval_pdf_microfacet(patch_index(ctx.uv), wo, wi, pdf);
     const auto [b, e] = lobes(ctx.uv);
-    return m_base.kind == LobeBase::Kind::Microfacet ? eval_pdf_microfacet(b, e, wo, wi, pdf)
-                                                     : eval_pdf_lambert(ctx, b, e, wo, wi, pdf);
+    return eval_pdf_lambert(ctx, b, e, wo, wi, pdf);
 }
 
 float SvLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {

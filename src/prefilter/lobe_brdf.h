@@ -134,20 +134,33 @@ public:
     /// The lobes of the patch holding uv: [first, last).
     std::pair<const Lobe *, const Lobe *> lobes(Vec2 uv) const;
     const LobeBase &base() const { return m_base; }
-    size_t memory_bytes() const { return m_lobes.size() * sizeof(Lobe) + m_first.size() * sizeof(uint32_t); }
+    size_t memory_bytes() const {
+        return m_lobes.size() * sizeof(Lobe) + m_blocks.size() * sizeof(LobeBlock) +
+               (m_first.size() + m_first_block.size()) * sizeof(uint32_t);
+    }
 
 private:
     /// ρ/π of a Lambertian base at ctx (its eval at normal incidence).
     Spectrum lambert(const ShadingContext &ctx) const;
-    Spectrum eval_pdf_microfacet(const Lobe *b, const Lobe *e, const Vec3 &wo, const Vec3 &wi, float *pdf) const;
+    Spectrum eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const;
+    size_t patch_index(Vec2 uv) const;
     Spectrum eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, const Lobe *e, const Vec3 &wo,
                               const Vec3 &wi, float *pdf) const;
     /// The lobe chosen by u_lobe for wo (P_j of the header); null when none faces wo.
     const Lobe *choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const;
 
+    /// Four lobes of one patch by component (eval_pdf_microfacet's SSE pass); unused lanes have
+    /// c = 0 and μ = 0 (they face nothing).
+    struct alignas(16) LobeBlock {
+        float mx[4] = {}, my[4] = {}, mz[4] = {}, c[4] = {}, alpha[4] = {}, a2[4] = {}, inv_a2[4] = {},
+              d_norm[4] = {};
+    };
+
     LobeBase m_base;
     std::vector<Lobe> m_lobes;
     std::vector<uint32_t> m_first;  ///< patch k's lobes are m_lobes[m_first[k] .. m_first[k + 1])
+    std::vector<LobeBlock> m_blocks;
+    std::vector<uint32_t> m_first_block;  ///< patch k's blocks: m_blocks[m_first_block[k] .. [k + 1])
     int m_w = 0, m_h = 0;
 };
 
