@@ -34,7 +34,9 @@ struct Level {
     HeightMap fine, coarse;
     Heightfield orig, low;
     std::unique_ptr<SvMultiLobe> flow;
-    Level(const HeightMap &map, int F, std::shared_ptr<const Material> low_base) : fine(map) {
+    /// lobes_base: the base's JSON for the closed-form f'_low (--flow lobes), null for eq. 5's quadrature.
+    Level(const HeightMap &map, int F, std::shared_ptr<const Material> low_base, const char *lobes_base = nullptr)
+        : fine(map) {
         LowResHeights l = downsample_least_squares(map, F, true, 0.01);
         coarse = HeightMap(l.width, l.height);
         for (size_t k = 0; k < l.h.size(); ++k) coarse.h[k] = float(l.h[k]);
@@ -46,7 +48,10 @@ struct Level {
         o.em.exact_kappa = true;
         o.em.max_kappa = 1e9;  // as meso prefilter: flat patches are (nearly) deltas
         std::vector<PatchNdf> ndf = fit_svndf(Heightfield(fine, 1.f, 0.f), F, o);
-        flow = std::make_unique<SvMultiLobe>(std::move(low_base), ndf, coarse.width, coarse.height, QuadratureOptions{});
+        QuadratureOptions q;
+        q.lobes = lobes_base != nullptr;
+        flow = std::make_unique<SvMultiLobe>(std::move(low_base), ndf, coarse.width, coarse.height, q,
+                                             lobes_base ? nlohmann::json::parse(lobes_base) : nlohmann::json());
     }
 };
 
@@ -410,12 +415,14 @@ namespace {
 /// Numerator (single bounce and with interreflections) and denominator of a few bin pairs,
 /// grazing ones included, after three rounds of the stopping rule (later rounds trace only
 /// some ωo bins: unequal line counts), against independent estimates of the same integrals;
-/// with `cv_lines` > 0, with the control variate (scaling.h).
-void check_against_brute_force(int cv_lines) {
+/// with `cv_lines` > 0, with the control variate (scaling.h); with `lobes`, f'_low is the closed
+/// form of --flow lobes (evaluated exactly per line instead of by sampled nodes).
+void check_against_brute_force(int cv_lines, bool lobes = false) {
     std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", "0.05"}, {"seed", "5"}};
     HeightMap map = generate_height_map("fbm", p).height;
-    auto base = make_material(R"({"type": "conductor", "material": "Al", "alpha": 0.3})");
-    Level L(map, 8, base);
+    const char *base_json = R"({"type": "conductor", "material": "Al", "alpha": 0.3})";
+    auto base = make_material(base_json);
+    Level L(map, 8, base, lobes ? base_json : nullptr);
     const int N = 3;
     ScalingOptions o = small_options(1, N, 1600);
     o.cv_lines = cv_lines;
@@ -465,6 +472,7 @@ void check_against_brute_force(int cv_lines) {
 
 TEST(PrefilterScalingEstimator, UnbiasedAgainstBruteForce) { check_against_brute_force(0); }
 TEST(PrefilterScalingEstimator, ControlVariateUnbiasedAgainstBruteForce) { check_against_brute_force(1600); }
+TEST(PrefilterScalingEstimator, LobesFormUnbiasedAgainstBruteForce) { check_against_brute_force(0, true); }
 
 TEST(PrefilterScalingEstimator, ReportedStandardErrorMatchesTheSpreadOverSeeds) {
     // The median relative standard error of S the estimator reports against the spread of S
