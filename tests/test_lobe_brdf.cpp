@@ -44,7 +44,8 @@ TEST(LobeBrdf, WidenedAlphaMatchesTiltedBeckmannSlopes) {
     // approximation adds O(1/κ + α²) relative.
     EXPECT_DOUBLE_EQ(widened_alpha(0.25, std::numeric_limits<double>::infinity()), 0.25);
     EXPECT_DOUBLE_EQ(widened_alpha(0.25, 1e300), 0.25);
-    EXPECT_DOUBLE_EQ(widened_alpha(0.25, 0.0), kMaxLobeAlpha);
+    EXPECT_DOUBLE_EQ(widened_alpha(0.25, 0.0), kMaxWidenedAlpha);
+    EXPECT_DOUBLE_EQ(widened_alpha(3.0, 0.5), 3.0);  // a base rougher than the cap keeps its α
     EXPECT_NEAR(widened_alpha(0.25, 200.0), std::sqrt(0.0625 + 0.01), 1e-12);
     struct Case {
         double alpha, kappa;
@@ -140,7 +141,7 @@ TEST(LobeBrdf, ClosedFormAgainstEq5Quadrature) {
     // here, bounded loosely (finite, the right order), never snapshotted.
     std::printf("closed form / dense eq. 5: ratio of the sums over 27 direction pairs, two lobes of equal kappa:\n");
     for (const char *b : {kBeckmann, kDiffuse})
-        for (double kappa : {1e9, 1e4, 300.0, 30.0, 3.0, 0.3}) {
+        for (double kappa : {1e9, 1e4, 300.0, 30.0, 3.0, 1.0, 0.3, 0.0}) {
             auto base = make_material(b);
             const PatchNdf ndf = make_ndf({{unit(0.3, 0.1, 1.0), kappa, 0.7}, {unit(-0.5, 0.0, 1.0), kappa, 0.3}});
             auto f = lobe_form(b, ndf);
@@ -153,8 +154,10 @@ TEST(LobeBrdf, ClosedFormAgainstEq5Quadrature) {
             const double ratio = sum_f / sum_q;
             std::printf("  %-9s kappa %8.1f: %.3f\n", nlohmann::json::parse(b)["type"].get<std::string>().c_str(), kappa,
                         ratio);
-            EXPECT_GT(ratio, kappa >= 30.0 ? 0.7 : 0.2) << b << " kappa " << kappa;
-            EXPECT_LT(ratio, kappa >= 30.0 ? 1.3 : 3.0) << b << " kappa " << kappa;
+            // Measured: conductor 0.96-1.04 for κ >= 3, 1.10-1.42 below (the widening stops at α' = 1);
+            // diffuse 1.000 for κ >= 30, 0.76-0.97 below (the cuts' overlap is approximated).
+            EXPECT_GT(ratio, kappa >= 30.0 ? 0.9 : 0.6) << b << " kappa " << kappa;
+            EXPECT_LT(ratio, kappa >= 30.0 ? 1.1 : 1.6) << b << " kappa " << kappa;
         }
 }
 

@@ -144,8 +144,9 @@ void check_microfacet_base(const LobeBase &lb, const MicrofacetDistribution &d, 
 }  // namespace
 
 double widened_alpha(double alpha, double kappa) {
-    const double a2 = alpha * alpha + (kappa > 0.0 ? 2.0 / kappa : kMaxLobeAlpha * kMaxLobeAlpha);
-    return std::clamp(std::sqrt(a2), std::min(alpha, kMaxLobeAlpha), kMaxLobeAlpha);
+    const double cap = std::max(alpha, kMaxWidenedAlpha);
+    if (!(kappa > 2.0 / (cap * cap))) return cap;  // also κ = 0 and NaN
+    return std::min(std::sqrt(alpha * alpha + 2.0 / kappa), cap);
 }
 
 float vmf_clamped_cosine(float t, double kappa) {
@@ -211,8 +212,9 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             l.mu = Vec3(float(v.mu.x / ml), float(v.mu.y / ml), float(v.mu.z / ml));
             const double kappa = std::min(v.kappa, vmf::kMaxKappa);
             l.krow = VmfTables::row(kappa);
-            l.c = float(P.amplitude * v.weight * VmfTables::lookup(vmf_tables().H, l.mu.z, l.krow));
-            if (!(l.c > 0.f)) continue;
+            l.hz = VmfTables::lookup(vmf_tables().H, l.mu.z, l.krow);
+            l.c = float(P.amplitude * v.weight * l.hz);
+            if (!(l.c > 0.f) || !(l.hz > 0.f)) continue;
             const double a = widened_alpha(m_base.alpha, kappa);
             l.alpha = float(a);
             l.inv_a2 = float(1.0 / (a * a));
@@ -310,7 +312,7 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, 
     const VmfTables &tab = vmf_tables();
     float sum = 0.f, psum = 0.f, ptot = 0.f;
     for (const Lobe *l = b; l != e; ++l) {
-        const float v = l->c * VmfTables::lookup(tab.H, dot(l->mu, wo), l->krow);
+        const float v = l->c * std::min(1.f, VmfTables::lookup(tab.H, dot(l->mu, wo), l->krow) / l->hz);
         if (!(v > 0.f)) continue;
         const float ti = dot(l->mu, wi);
         ptot += v;
@@ -343,7 +345,8 @@ const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const V
     float total = 0.f;
     for (int j = 0; j < n; ++j) {
         const float t = dot(b[j].mu, wo);
-        w[j] = mf ? (t > 0.f ? b[j].c : 0.f) : b[j].c * VmfTables::lookup(vmf_tables().H, t, b[j].krow);
+        w[j] = mf ? (t > 0.f ? b[j].c : 0.f)
+                  : b[j].c * std::min(1.f, VmfTables::lookup(vmf_tables().H, t, b[j].krow) / b[j].hz);
         total += w[j];
     }
     if (!(total > 0.f)) return nullptr;

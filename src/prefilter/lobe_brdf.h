@@ -24,9 +24,11 @@
 //   normal, so the variances add: α'²/2 = α²/2 + 1/κ, i.e.
 //       α'² = α² + 2/κ                                           (widened_alpha)
 //   (not 1/(2κ): that is the spread of REFLECTED directions, twice the normal's angle). κ → ∞
-//   gives the base (α' = α); κ → 0 (a uniform sphere of normals) gives α' → ∞, clamped to
-//   kMaxLobeAlpha (the lobe then reflects almost nothing: eq. 5 spreads it over the sphere, and
-//   T absorbs it). GGX uses the same α' (GGX's slope variance is infinite; α is its core width).
+//   gives the base (α' = α). κ → 0 (a uniform sphere of normals) would give α' → ∞, whose Beckmann
+//   lobe puts its mass at the horizon and reflects almost nothing (0.22 of eq. 5 at κ = 0.3); the
+//   widening stops at kMaxWidenedAlpha = 1 instead, where GGX's D is exactly the uniform 1/π and
+//   Beckmann's matches it at the pole (a base rougher than that keeps its own α). GGX uses the
+//   same α' (GGX's slope variance is infinite; α is its core width).
 //       g_j = F(ωi·h) D_α'(h; μ_j) G_α'(ωo, ωi; μ_j) / (4 μ_j·ωo)       (μ_j·ωo, μ_j·ωi, μ_j·h > 0)
 //   h = normalize(ωo + ωi) is frame-independent, so the Fresnel term F(ωi·h) (times the base's
 //   specular_reflectance) is evaluated ONCE per (ωo, ωi), from a 64-entry table probed from the
@@ -34,14 +36,16 @@
 //   of microfacet.h, with Walter et al. 2007's rational Λ for Beckmann (no erf) and the exact Λ
 //   for GGX (one sqrt).
 // * Lambertian base (`diffuse`, any reflectance texture, read through the base's own eval):
-//       g_j = ρ/π · C(μ_j·ωi, κ_j) · H(μ_j·ωo, κ_j)
+//       c_j g_j = A a_j · ρ/π · C(μ_j·ωi, κ_j) · min(H(μ_j,z, κ_j), H(μ_j·ωo, κ_j))
 //   C(t, κ) = ∫ γ(ω; μ, κ) max(0, ω·ωi) dω (t = μ·ωi) is the vMF-convolved clamped cosine,
-//   exactly what eq. 5 gives for the ωi side; the viewer-side switch [ω·ωo > 0] of eq. 5 becomes
-//   the lobe's visible mass H(μ_j·ωo, κ_j) (a product approximation: smooth, no hard line where
-//   ωo crosses a facet plane). C and H are tabulated (vmf_clamped_cosine, vmf_cap_mass).
+//   exactly what eq. 5 gives for the ωi side; eq. 5's two other cuts, the macro horizon
+//   [ω_z > 0] and the viewer's [ω·ωo > 0], become the smaller of the two masses (ωo is above the
+//   horizon, so the cuts overlap: their product would count the overlap twice, 0.38 of eq. 5
+//   for κ = 0 instead of 0.76). Smooth, no hard line where ωo crosses a facet plane. C and H are
+//   tabulated (vmf_clamped_cosine, vmf_cap_mass).
 //
 // Sampling: lobe j with probability P_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) (v = [μ_j·ωo > 0] for
-// microfacet lobes, H(μ_j·ωo, κ_j) for Lambertian ones), then
+// microfacet lobes, min(1, H(μ_j·ωo, κ_j) / H(μ_j,z, κ_j)) for Lambertian ones), then
 //   microfacet: the FULL NDF D_α'(m; μ_j)(m·μ_j) in the frame of μ_j (closed form, no inverted
 //     CDF), ωi = reflect(ωo, m); density D (m·μ_j) / (4 ωo·m) where μ_j·ωi > 0;
 //   Lambertian: a vMF around μ_j with κ'_j = κ_j κ_c / (κ_j + κ_c), κ_c = kCosineKappa (the clamped
@@ -64,13 +68,13 @@
 
 namespace meso::prefilter {
 
-/// Largest widened roughness of a lobe (κ → 0); the quality bars' largest roughness.
-constexpr double kMaxLobeAlpha = 10.0;
+/// Where widening stops (κ → 0): GGX with α = 1 is the uniform NDF D = 1/π.
+constexpr double kMaxWidenedAlpha = 1.0;
 /// κ of the vMF that stands in for a clamped cosine when sampling Lambertian lobes (Wang et al.
 /// 2009's fit, cos⁺ ≈ 2.133 · vMF-shaped lobe).
 constexpr double kCosineKappa = 2.133;
 
-/// α' = sqrt(α² + 2/κ) (see the header), clamped to [α, kMaxLobeAlpha]; κ = 0 and κ = ∞ allowed.
+/// α' = sqrt(α² + 2/κ) (see the header), at most max(α, kMaxWidenedAlpha); κ = 0 and κ = ∞ allowed.
 double widened_alpha(double alpha, double kappa);
 /// C(t, κ) = ∫ γ(ω; μ, κ) max(0, ω·n) dω for t = μ·n ∈ [−1, 1], κ ∈ [0, ∞]: bilinear in a table
 /// of vmf_projected_area (exact at κ = 0: 1/4, and κ = ∞: max(0, t)).
@@ -114,6 +118,7 @@ public:
         float krow = 0.f;     ///< κ_j as a row coordinate of the C and H tables (Lambertian)
         float kappa_s = 0.f;  ///< κ'_j of the Lambertian sampler
         float vmf_norm = 0.f; ///< κ'_j / (2π (1 − e^{−2κ'_j})): the sampler's density at μ_j
+        float hz = 0.f;       ///< H(μ_j,z, κ_j) (> 0)
     };
 
     SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height);
