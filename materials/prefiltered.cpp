@@ -45,6 +45,13 @@
 // 3x for rough plastic, 20x for a Lambertian base (one S lookup costs more than that base);
 // "quadrature" 27-90x (N base evaluations per pass).
 //
+// Flow form. A model made with `meso prefilter --flow lobes` (manifest parameters.flow) shades with
+// the closed-form f'_low of prefilter/lobe_brdf.h, the one its T and S were fitted to: one
+// base-like lobe per vMF lobe (roughness widened to α'² = α² + 2/κ; a diffuse base convolved
+// in closed form), deterministic, exact pdf; "estimator" has no effect there (there are no nodes
+// to pick: every estimator is the closed form). The optional "flow" parameter states the form a
+// scene expects and is refused when the model was made with another.
+//
 // Base material. By default, the one the model was made with (manifest "input"."base", a
 // meso material object); relative file names inside it (textures) resolve against the
 // manifest's "input"."base_dir" (where `meso prefilter` read the --base file) when that
@@ -68,6 +75,8 @@
 //                                        evaluation where the integrator supplies u_eval; see above) |
 //                                        "stratified" (a set of estimator_nodes nodes per vertex; see above)
 //   estimator_nodes int        8         m of "stratified", 1..32
+//   flow     string            model     optional check: "eq5" | "visible" | "lobes"; must be the form the
+//                                        model was made with (`meso prefilter --flow`), else an error
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -129,12 +138,14 @@ std::shared_ptr<const Material> model_base(const std::shared_ptr<const Prefilter
 
 std::shared_ptr<const SvMultiLobe> svbrdf_cached(const std::shared_ptr<const PrefilteredModel> &model,
                                                  const std::string &dir, const PrefilteredLevel &level,
-                                                 const std::shared_ptr<const Material> &base, bool own_base) {
+                                                 const std::shared_ptr<const Material> &base, bool own_base,
+                                                 const nlohmann::json &base_json, const std::string &base_where) {
     ModelCache &c = cache();
     std::lock_guard<std::mutex> lock(c.mutex);
     const auto key = std::make_tuple(dir, level.factor, own_base ? nullptr : base.get());
     if (auto f = c.svbrdfs[key].lock()) return f;
-    auto f = std::make_shared<const SvMultiLobe>(base, level.ndf, level.width(), level.height(), model->quadrature);
+    auto f = std::make_shared<const SvMultiLobe>(base, level.ndf, level.width(), level.height(), model->quadrature,
+                                                 base_json, base_where);
     c.svbrdfs[key] = f;
     return f;
 }
@@ -168,7 +179,7 @@ public:
 
     Spectrum albedo_hint(const ShadingContext &ctx) const override {
         const Local l = local(ctx);
-        Spectrum a = m.f->patch(l.c.uv).albedo_hint(l.c);
+        Spectrum a = flow(l).albedo_hint(l.c);
         if (m.use_T) a *= m.tables->eval_T(l.c.uv);
         return a;
     }
@@ -187,12 +198,15 @@ public:
         const Local l = local(ctx);
         const Vec3 mo = l.to_macro(ctx, wo), mi = l.to_macro(ctx, wi);
         if (!(mo.z > 0.f) || !(mi.z > 0.f)) return Spectrum(0.f);
-        const MultiLobeBrdf &f = m.f->patch(l.c.uv);
         Spectrum v;
         switch (estimator(ctx)) {
-        case Estimator::Stochastic: v = f.eval_pdf_stochastic(l.c, mo, mi, double(ctx.u_eval), pdf); break;
-        case Estimator::Stratified: v = f.eval_pdf_stratified(l.c, mo, mi, double(ctx.u_eval), m.set_nodes, pdf); break;
-        default: v = f.eval_pdf(l.c, mo, mi, pdf); break;
+        case Estimator::Stochastic:
+            v = m.f->patch(l.c.uv).eval_pdf_stochastic(l.c, mo, mi, double(ctx.u_eval), pdf);
+            break;
+        case Estimator::Stratified:
+            v = m.f->patch(l.c.uv).eval_pdf_stratified(l.c, mo, mi, double(ctx.u_eval), m.set_nodes, pdf);
+            break;
+        default: v = flow(l).eval_pdf(l.c, mo, mi, pdf); break;
         }
         return v.is_black() ? v : scaled(l, v, mo, mi);
     }
@@ -202,7 +216,7 @@ public:
         const Local l = local(ctx);
         const Vec3 mo = l.to_macro(ctx, wo), mi = l.to_macro(ctx, wi);
         if (!(mo.z > 0.f) || !(mi.z > 0.f)) return 0.f;
-        return m.f->patch(l.c.uv).pdf(l.c, mo, mi);
+        return flow(l).pdf(l.c, mo, mi);
     }
 
     bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override {
@@ -210,15 +224,15 @@ public:
         const Local l = local(ctx);
         const Vec3 mo = l.to_macro(ctx, wo);
         if (!(mo.z > 0.f)) return false;
-        const MultiLobeBrdf &f = m.f->patch(l.c.uv);
+        const Material &f = flow(l);
         BSDFSample bs;
         const Estimator est = estimator(ctx);
         const bool from_record = est != Estimator::Quadrature;  // weight and pdf from the base's record
         bool ok = false;
         switch (est) {
-        case Estimator::Stochastic: ok = f.sample_stochastic(l.c, mo, u_lobe, u, bs); break;
+        case Estimator::Stochastic: ok = m.f->patch(l.c.uv).sample_stochastic(l.c, mo, u_lobe, u, bs); break;
         case Estimator::Stratified:
-            ok = f.sample_stratified(l.c, mo, double(ctx.u_eval), m.set_nodes, u_lobe, u, bs);
+            ok = m.f->patch(l.c.uv).sample_stratified(l.c, mo, double(ctx.u_eval), m.set_nodes, u_lobe, u, bs);
             break;
         default: ok = f.sample(l.c, mo, u_lobe, u, bs); break;
         }
@@ -295,8 +309,14 @@ private:
         return l;
     }
 
+    /// f'_low at the shading point: the level's closed form (--flow lobes) or the patch's quadrature.
+    const Material &flow(const Local &l) const {
+        if (const prefilter::SvLobeBrdf *lf = m.f->lobe_form()) return *lf;
+        return m.f->patch(l.c.uv);
+    }
+
     Spectrum eval_macro(const Local &l, const Vec3 &mo, const Vec3 &mi) const {
-        Spectrum v = m.f->patch(l.c.uv).eval(l.c, mo, mi);
+        Spectrum v = flow(l).eval(l.c, mo, mi);
         return v.is_black() ? v : scaled(l, v, mo, mi);
     }
     /// f'_low times T and S (as configured).
@@ -342,9 +362,18 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
                                                                      {"stochastic", Estimator::Stochastic},
                                                                      {"stratified", Estimator::Stratified}});
     std::string estimator = p.get_string("estimator", "quadrature");  // as written, for the description
+    const std::string model_flow = prefilter::flow_name(c.model->quadrature);
+    if (p.has("flow") && p.get_string("flow") != model_flow)
+        p.fail("flow", fmt::format("the model '{}' was made with --flow {} (its tables are fitted to that f'_low), not "
+                                   "\"{}\": remake it with `meso prefilter --flow {}` or drop \"flow\"",
+                                   dir, model_flow, p.get_string("flow"), p.get_string("flow")));
     if (c.estimator == Estimator::Stratified) {
         c.set_nodes = p.get_int("estimator_nodes", kDefaultSetNodes, Range::closed(1, MultiLobeBrdf::kMaxSetNodes));
         estimator += fmt::format(" ({} nodes)", c.set_nodes);
+    }
+    if (c.model->quadrature.lobes) {  // nothing to estimate: every estimator is the closed form itself
+        c.estimator = Estimator::Quadrature;
+        estimator = "closed form (--flow lobes)";
     }
     if (p.has("tiling")) std::tie(c.tu, c.tv) = p.get_tiling();
     if (c.model->wrap != WrapMode::Repeat) c.tu *= 0.5f, c.tv *= 0.5f;  // the model spans the map's 2 x 2 extension
@@ -360,7 +389,8 @@ std::shared_ptr<Material> make_prefiltered(const Properties &p) {
         base = p.get_material("base");
     }
     try {
-        c.f = svbrdf_cached(c.model, dir, *c.level, base, own_base);
+        c.f = svbrdf_cached(c.model, dir, *c.level, base, own_base, own_base ? c.model->base : p.raw("base"),
+                            own_base ? (fs::path(dir) / "manifest.json").string() + ": input.base" : "the base override");
     } catch (const MesoError &e) {
         p.fail(own_base ? "model" : "base", e.what());
     }

@@ -32,7 +32,7 @@ namespace {
 /// The flags as given (strings where they are parsed or checked in validate()).
 struct PrefilterFlags {
     prefilter::PipelineOptions pipeline;
-    std::string scales = "8,64", interreflections = "on", flow = "eq5";
+    std::string scales = "8,64", interreflections = "on", flow = "auto";
     std::vector<std::string> params;
     int size = 0;
     int64_t gen_seed = -1;
@@ -81,7 +81,10 @@ prefilter::PipelineOptions validate(const PrefilterFlags &f) {
     if (o.map.empty() == o.generator.empty())
         throw MesoError("prefilter: give exactly one of --map FILE and --generator KIND");
     o.interreflections = parse_choice("--interreflections", f.interreflections, {"on", "off"}) == 0;
-    o.flow_projected_area = parse_choice("--flow", f.flow, {"visible", "eq5"}) == 0;
+    const int flow = parse_choice("--flow", f.flow, {"visible", "eq5", "lobes", "auto"});
+    o.flow_projected_area = flow == 0;
+    o.flow_lobes = flow == 2;
+    o.flow_auto = flow == 3;
     if (!(o.height_scale > 0) || !std::isfinite(o.height_scale) || !(o.tile_size > 0) || !std::isfinite(o.tile_size))
         throw UsageError("--height-scale and --tile-size must be positive and finite");
     if (!o.wrap.empty()) parse_choice("--wrap", o.wrap, {"repeat", "clamp", "mirror"});
@@ -162,8 +165,9 @@ SubcommandRegistrar reg_prefilter{
          app.add_option("--quadrature-azimuth", o->quad_azimuth, "f'_low quadrature: azimuthal nodes")->capture_default_str()
              ->check(CLI::Range(1, 256));
          app.add_option("--flow", f->flow,
-                        "f'_low: visible (facets weighted by their projected area towards the viewer) or eq5 "
-                        "(paper 004 eq. 5 as printed)")
+                        "f'_low: visible (facets weighted by their projected area towards the viewer), eq5 "
+                        "(paper 004 eq. 5 as printed), lobes (closed form: one widened base lobe per vMF lobe; "
+                        "diffuse or rough conductor bases) or auto (lobes where the base allows it, else eq5)")
              ->capture_default_str();
          app.add_option("--epsilon", o->epsilon, "eq. 12's epsilon, relative to the mean denominator")->capture_default_str();
          app.add_option("--seed", o->seed, "random seed of the estimators")->capture_default_str();

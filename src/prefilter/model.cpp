@@ -200,6 +200,13 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
     m.quadrature.polar = par.value("quadrature_polar", 4);
     m.quadrature.azimuth = par.value("quadrature_azimuth", 6);
     m.quadrature.projected_area = par.value("flow_projected_area", false);
+    // parameters.flow (absent in models made before --flow lobes: eq5 or visible as above).
+    const std::string flow = par.value("flow", flow_name(m.quadrature));
+    if (flow != "eq5" && flow != "visible" && flow != "lobes")
+        throw MesoError(fmt::format("{}: parameters.flow: expected \"eq5\", \"visible\" or \"lobes\", got \"{}\"",
+                                    where, flow));
+    m.quadrature.lobes = flow == "lobes";
+    m.quadrature.projected_area = flow == "visible";
     if (m.map_width < 1 || m.map_height < 1 || !(m.tile_size > 0) || m.lobes < 1 || m.lobes > 64)
         throw MesoError(fmt::format("{}: invalid map size, tile_size or lobes", where));
     for (const auto &lj : need(j, "levels", where)) {
@@ -303,11 +310,18 @@ std::string PrefilteredModel::factor_list() const {
 
 // ---------------------------------------------------------------------------------------
 
+std::string flow_name(const QuadratureOptions &q) { return q.lobes ? "lobes" : q.projected_area ? "visible" : "eq5"; }
+
 SvMultiLobe::SvMultiLobe(std::shared_ptr<const Material> base, const std::vector<PatchNdf> &ndf, int width,
-                         int height, const QuadratureOptions &q)
+                         int height, const QuadratureOptions &q, const nlohmann::json &base_json,
+                         const std::string &base_where)
     : m_base(std::move(base)), m_w(width), m_h(height) {
     if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
         throw MesoError(fmt::format("multi-lobe SVBRDF: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
+    if (q.lobes) {
+        m_lobe_form = std::make_unique<SvLobeBrdf>(make_lobe_base(m_base, base_json, base_where), ndf, width, height);
+        return;
+    }
     m_patches.resize(ndf.size());
     tbb::parallel_for(size_t(0), ndf.size(), [&](size_t k) {
         m_patches[k] = std::make_unique<MultiLobeBrdf>(m_base, ndf[k], q);
@@ -321,20 +335,27 @@ const MultiLobeBrdf &SvMultiLobe::patch(Vec2 uv) const {
 }
 
 Spectrum SvMultiLobe::eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
-    return patch(ctx.uv).eval(ctx, wo, wi);
+    return m_lobe_form ? m_lobe_form->eval(ctx, wo, wi) : patch(ctx.uv).eval(ctx, wo, wi);
 }
 float SvMultiLobe::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
-    return patch(ctx.uv).pdf(ctx, wo, wi);
+    return m_lobe_form ? m_lobe_form->pdf(ctx, wo, wi) : patch(ctx.uv).pdf(ctx, wo, wi);
+}
+Spectrum SvMultiLobe::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
+    return m_lobe_form ? m_lobe_form->eval_pdf(ctx, wo, wi, pdf) : patch(ctx.uv).eval_pdf(ctx, wo, wi, pdf);
 }
 bool SvMultiLobe::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
-    return patch(ctx.uv).sample(ctx, wo, u_lobe, u, out);
+    return m_lobe_form ? m_lobe_form->sample(ctx, wo, u_lobe, u, out) : patch(ctx.uv).sample(ctx, wo, u_lobe, u, out);
 }
-uint32_t SvMultiLobe::flags() const { return m_patches.front()->flags(); }
-Spectrum SvMultiLobe::albedo_hint(const ShadingContext &ctx) const { return patch(ctx.uv).albedo_hint(ctx); }
+uint32_t SvMultiLobe::flags() const { return m_lobe_form ? m_lobe_form->flags() : m_patches.front()->flags(); }
+Spectrum SvMultiLobe::albedo_hint(const ShadingContext &ctx) const {
+    return m_lobe_form ? m_lobe_form->albedo_hint(ctx) : patch(ctx.uv).albedo_hint(ctx);
+}
 std::string SvMultiLobe::to_string() const {
-    return fmt::format("SvMultiLobe[{}x{} patches, base {}]", m_w, m_h, m_base->to_string());
+    return fmt::format("SvMultiLobe[{}x{} patches, flow {}, base {}]", m_w, m_h,
+                       m_lobe_form ? "lobes" : "quadrature", m_base->to_string());
 }
 size_t SvMultiLobe::memory_bytes() const {
+    if (m_lobe_form) return m_lobe_form->memory_bytes();
     size_t b = 0;
     for (const auto &p : m_patches) b += sizeof(MultiLobeBrdf) + p->node_bytes();
     return b;

@@ -40,6 +40,7 @@
 #include "core/vec.h"
 #include "geometry/heightmap.h"
 #include "image/image.h"
+#include "prefilter/lobe_brdf.h"
 #include "prefilter/multilobe_brdf.h"
 #include "prefilter/patch_ndf.h"
 #include "bsdf/material.h"
@@ -141,20 +142,27 @@ std::vector<std::pair<int, int>> map_fingerprint_vertices(int w, int h);
 Image lobes_to_image(const std::vector<PatchNdf> &ndf, int width, int height, int lobes);
 std::vector<PatchNdf> lobes_from_image(const Image &img, int lobes, const std::string &where);
 
+/// The flow form's name in the manifest and on the command line: "eq5", "visible" or "lobes".
+std::string flow_name(const QuadratureOptions &q);
+
 /// The spatially varying multi-lobe BRDF f'_low of one level (eq. 11), a Material evaluated
 /// in the MACRO frame (local z = the macro normal): patch (I, J) = floor(frac(uv) (W/F, H/F)).
-/// One MultiLobeBrdf per patch, built once (≈ nodes · 76 bytes per patch).
+/// One MultiLobeBrdf per patch, built once (≈ nodes · 76 bytes per patch); with q.lobes, one
+/// SvLobeBrdf for the level instead (lobe_brdf.h; then patch() must not be called).
 class SvMultiLobe final : public Material {
 public:
+    /// base_json: the base's scene object (needed by q.lobes, which recognises the base from it;
+    /// base_where names it in errors).
     SvMultiLobe(std::shared_ptr<const Material> base, const std::vector<PatchNdf> &ndf, int width, int height,
-                const QuadratureOptions &q);
+                const QuadratureOptions &q, const nlohmann::json &base_json = nullptr,
+                const std::string &base_where = "base");
     const MultiLobeBrdf &patch(Vec2 uv) const;
+    /// The closed-form f'_low of --flow lobes models, else null.
+    const SvLobeBrdf *lobe_form() const { return m_lobe_form.get(); }
     const Material &base() const { return *m_base; }
     Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
     float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
-    Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const override {
-        return patch(ctx.uv).eval_pdf(ctx, wo, wi, pdf);
-    }
+    Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const override;
     bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override;
     uint32_t flags() const override;
     Spectrum albedo_hint(const ShadingContext &ctx) const override;
@@ -165,6 +173,7 @@ public:
 private:
     std::shared_ptr<const Material> m_base;
     std::vector<std::unique_ptr<MultiLobeBrdf>> m_patches;
+    std::unique_ptr<SvLobeBrdf> m_lobe_form;
     int m_w = 0, m_h = 0;
 };
 

@@ -141,6 +141,9 @@ struct QuadratureOptions {
     /// within 1%. meso prefilter therefore defaults to eq. 5 (--flow eq5) and offers this as
     /// --flow visible.
     bool projected_area = false;
+    /// --flow lobes: f'_low is the closed-form per-lobe BRDF of prefilter/lobe_brdf.h (one widened
+    /// base lobe per vMF lobe) instead of this quadrature (polar, azimuth and projected_area unused).
+    bool lobes = false;
 };
 
 /// One node of the quadrature of D: micro-normal ω_k (its frame) and weight c_k.

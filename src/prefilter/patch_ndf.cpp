@@ -159,7 +159,10 @@ double patch_ndf_eval(const PatchNdf &ndf, Vec3 w) {
     return ndf.amplitude * d;
 }
 
-double vmf_projected_area(Vec3 mu, double kappa) {
+namespace {
+/// ∫ γ(ω; μ, κ) g(ω_z) dω for g = max(0, ·) (cap = false: vmf_projected_area) or the step [· > 0]
+/// (cap = true: vmf_cap_mass).
+double plane_integral(Vec3 mu, double kappa, bool cap) {
     const double mx = mu.x, my = mu.y, mz = mu.z;
     const double ml = std::sqrt(mx * mx + my * my + mz * mz);
     if (!(ml > 0.0)) return 0.0;
@@ -168,15 +171,17 @@ double vmf_projected_area(Vec3 mu, double kappa) {
 
     // Lobe frame: ω = u μ + sqrt(1 − u²) (cos φ e1 + sin φ e2), ω_z = a + b cos φ with
     // a = u c, b = sqrt(1 − u²) s ≥ 0. Mean over φ of max(0, a + b cos φ):
-    //   a ≥ b: a;  a ≤ −b: 0;  else (a arccos(−a/b) + sqrt(b² − a²)) / π   (C¹ in u).
+    //   a ≥ b: a;  a ≤ −b: 0;  else (a arccos(−a/b) + sqrt(b² − a²)) / π   (C¹ in u);
+    // of [a + b cos φ > 0]: 1, 0, else arccos(−a/b) / π (continuous in u).
     // u is the vMF's μ·ω; with v its CDF (u = vmf::sample_cos(κ, v)) P = ∫_0^1 g(u(v)) dv.
     auto g = [&](double v) {
         double omw;
         const double u = vmf::sample_cos(kappa, v, &omw);
         const double a = u * c, b = std::sqrt(std::max(0.0, omw * (2.0 - omw))) * s;
-        if (a >= b) return a;
+        if (a >= b) return cap ? 1.0 : a;
         if (a <= -b) return 0.0;
-        return (a * std::acos(std::clamp(-a / b, -1.0, 1.0)) + std::sqrt(std::max(0.0, b * b - a * a))) / kPi;
+        const double arc = std::acos(std::clamp(-a / b, -1.0, 1.0));
+        return cap ? arc / kPi : (a * arc + std::sqrt(std::max(0.0, b * b - a * a))) / kPi;
     };
     // v of a given 1 − u (the CDF), for the kinks of g.
     auto v_of = [&](double omw) {
@@ -209,6 +214,10 @@ double vmf_projected_area(Vec3 mu, double kappa) {
     }
     return sum;
 }
+}  // namespace
+
+double vmf_projected_area(Vec3 mu, double kappa) { return plane_integral(mu, kappa, false); }
+double vmf_cap_mass(Vec3 mu, double kappa) { return plane_integral(mu, kappa, true); }
 
 double mixture_projected_area(const std::vector<VmfLobe> &lobes) {
     double p = 0.0;

@@ -109,6 +109,8 @@ double patch_ndf_eval(const PatchNdf &ndf, Vec3 w);
 /// Gauss–Legendre; accurate to ~1e-12 for every κ in [0, 1e9] and every μ (tested against the identity
 /// P(μ) − P(−μ) = A₃(κ) μ_z and brute-force quadrature).
 double vmf_projected_area(Vec3 mu, double kappa);
+/// H(μ, κ) = ∫_{H²} γ(ω; μ, κ) dω: the lobe's mass above the horizon, by the same quadrature.
+double vmf_cap_mass(Vec3 mu, double kappa);
 
 /// Σ_j a_j P(μ_j, κ_j) of a set of lobes.
 double mixture_projected_area(const std::vector<VmfLobe> &lobes);

@@ -47,6 +47,10 @@ struct PipelineOptions {
     uint64_t seed = 1;         ///< --seed of the estimators
     int quad_polar = 3, quad_azimuth = 4;  ///< --quadrature, --quadrature-azimuth: f'_low nodes
     bool flow_projected_area = false;      ///< --flow visible (true) or eq5 (false)
+    bool flow_lobes = false;               ///< --flow lobes: the closed form of lobe_brdf.h
+    /// --flow auto (the command line's default): lobes where the base supports it (diffuse, rough
+    /// isotropic conductor), else eq5; the manifest records the form chosen.
+    bool flow_auto = false;
     bool quiet = false;        ///< -q: no progress bar
 };
 

@@ -299,11 +299,12 @@ struct ScalingEstimator::Task {
         Vertex v;
         if (!start_line(le.m_low, patch_of(le.m_low), k, K, true, wo, v, low_lines[j])) return false;
         const Vec3 org = spawn_origin(v);
-        const MultiLobeBrdf &fl_patch = le.m_low_mat.patch(v.ctx.uv);
-        if (J == 0)
-            fl_patch.eval_batch(v.ctx, wo, wi.data(), B, fl.data());
+        if (const SvLobeBrdf *lf = le.m_low_mat.lobe_form())  // closed form: deterministic and cheap
+            lf->eval_batch(v.ctx, wo, wi.data(), B, fl.data());
+        else if (J == 0)
+            le.m_low_mat.patch(v.ctx.uv).eval_batch(v.ctx, wo, wi.data(), B, fl.data());
         else
-            sample_f_low_nodes(le, fl_patch, v.ctx, wo, J, node_xi(k));
+            sample_f_low_nodes(le, le.m_low_mat.patch(v.ctx.uv), v.ctx, wo, J, node_xi(k));
         for (int b = 0; b < B; ++b) {
             const Vec3 &w = wi[size_t(b)];
             const Spectrum &f = fl[size_t(b)];

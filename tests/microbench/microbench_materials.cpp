@@ -17,7 +17,10 @@
 //                                      N = 15, M = 4; few paths: the tables' noise does not
 //                                      change the cost)
 //   prefiltered:<base>:stratified<m>   the same with "estimator": "stratified", estimator_nodes m
-//   the other materials (issue 22: "BSDF sample and eval per material"): rough GGX conductor (the perf scenes'), rough dielectric,
+//   prefiltered:<base>:lobes           a model of the same map and options made with --flow lobes (the
+//                                      closed-form f'_low of prefilter/lobe_brdf.h; diffuse and conductor
+//                                      bases: conductor = Beckmann, conductor_ggx = GGX)
+//   the other materials (issue 22: "BSDF sample and eval per material"): rough dielectric,
 //   blinnphong, gltf_pbr, leadr, lean, clean, toksvig, vmf (two lobes), normalmap, each at one
 //   typical setting, listed in a second table
 // uv: "--uv=random" (default) puts every input on a random texel of the map, so the model's
@@ -91,18 +94,19 @@ std::shared_ptr<Material> material_from_json(const nlohmann::json &j) {
 struct Base {
     std::string name;
     const char *json;
+    bool lobes = false;  ///< --flow lobes supports this base (prefilter/lobe_brdf.h)
 };
 
 const std::vector<Base> kBases = {
-    {"diffuse", R"({"type": "diffuse", "reflectance": [0.75, 0.45, 0.3]})"},
-    {"conductor", R"({"type": "conductor", "material": "Au", "distribution": "beckmann", "alpha": 0.25})"},
+    {"diffuse", R"({"type": "diffuse", "reflectance": [0.75, 0.45, 0.3]})", true},
+    {"conductor", R"({"type": "conductor", "material": "Au", "distribution": "beckmann", "alpha": 0.25})", true},
+    {"conductor_ggx", R"({"type": "conductor", "material": "Au", "distribution": "ggx", "alpha": 0.2})", true},
     {"plastic", R"({"type": "plastic", "diffuse_reflectance": [0.5, 0.2, 0.1], "distribution": "ggx", "alpha": 0.2})"},
 };
 constexpr int kFactor = 8;
 
 /// Every other registered material at one typical setting (issue 22's per-material cost).
 const std::vector<Base> kOthers = {
-    {"conductor_ggx", R"({"type": "conductor", "material": "Au", "distribution": "ggx", "alpha": 0.2})"},
     {"dielectric", R"({"type": "dielectric", "alpha": 0.2})"},
     {"blinnphong", R"({"type": "blinnphong", "exponent": 50, "specular_reflectance": 0.7, "diffuse_reflectance": 0.3})"},
     {"gltf_pbr", R"({"type": "gltf_pbr", "base_color": [0.8, 0.6, 0.4], "metallic": 0.3, "roughness": 0.5})"},
@@ -115,8 +119,9 @@ const std::vector<Base> kOthers = {
     {"normalmap", R"({"type": "normalmap", "normal": [0.3, 0.1, 0.9], "bsdf": {"type": "conductor", "material": "Au", "alpha": 0.2}})"},
 };
 
-/// A small model made by the prefilter pipeline with this base (see the header), written to dir.
-void build_small_model(const Base &b, const std::string &dir) {
+/// A small model made by the prefilter pipeline with this base (see the header), written to dir;
+/// lobes: with --flow lobes (the closed-form f'_low).
+void build_small_model(const Base &b, const std::string &dir, bool lobes) {
     prefilter::PipelineOptions o;
     o.generator = "fbm";
     o.generator_params = {{"size", "128"}, {"amplitude", "0.03"}, {"frequency", "4"}};
@@ -127,6 +132,7 @@ void build_small_model(const Base &b, const std::string &dir) {
     o.interreflections = false;
     o.paths = o.low_paths = 4;
     o.quiet = true;
+    o.flow_lobes = lobes;
     prefilter::build_model(o).save(dir);
 }
 
@@ -160,8 +166,8 @@ void print_summary(const std::map<std::string, double> &ns) {
     for (const char *kind : {"shade", "vertex"}) {
         std::printf("%s: %s\n", kind,
                     std::string(kind) == "shade" ? "eval_pdf + sample + pdf(sampled)" : "eval_pdf + sample");
-        std::printf("  %-10s %10s %14s %8s %14s %8s", "base", "base ns", "quadrature ns", "ratio", "stochastic ns",
-                    "ratio");
+        std::printf("  %-10s %10s %14s %8s %14s %8s %14s %8s", "base", "base ns", "lobes ns", "ratio", "quadrature ns",
+                    "ratio", "stochastic ns", "ratio");
         for (int nodes : kSetNodes) std::printf(" %13s%-2d %8s", "stratified", nodes, "ratio");
         std::printf("\n");
         for (const Base &b : kBases) {
@@ -170,11 +176,11 @@ void print_summary(const std::map<std::string, double> &ns) {
                 return it == ns.end() ? -1.0 : it->second;
             };
             const double base = get(b.name), q = get("prefiltered:" + b.name + ":quadrature"),
-                         s = get("prefiltered:" + b.name + ":stochastic");
+                         s = get("prefiltered:" + b.name + ":stochastic"), l = get("prefiltered:" + b.name + ":lobes");
             if (base < 0) continue;
             auto ratio = [&](double v) { return v < 0 ? std::string("-") : fmt::format("{:.2f}x", v / base); };
-            std::printf("  %-10s %10.1f %14.1f %8s %14.1f %8s", b.name.c_str(), base, q, ratio(q).c_str(), s,
-                        ratio(s).c_str());
+            std::printf("  %-10s %10.1f %14.1f %8s %14.1f %8s %14.1f %8s", b.name.c_str(), base, l, ratio(l).c_str(), q,
+                        ratio(q).c_str(), s, ratio(s).c_str());
             for (int nodes : kSetNodes) {
                 const double v = get(fmt::format("prefiltered:{}:stratified{}", b.name, nodes));
                 std::printf(" %15.1f %8s", v, ratio(v).c_str());
@@ -212,7 +218,7 @@ int main(int argc, char **argv) {
     try {
         for (const Base &b : kBases) {
             const std::string dir = (scratch / b.name).string();
-            build_small_model(b, dir);
+            build_small_model(b, dir, false);
             std::vector<std::pair<std::string, std::shared_ptr<Material>>> mats = {
                 {b.name, material_from_json(nlohmann::json::parse(b.json))}};
             for (const char *est : {"quadrature", "stochastic"})
@@ -223,6 +229,11 @@ int main(int argc, char **argv) {
                 mats.push_back({fmt::format("prefiltered:{}:stratified{}", b.name, nodes),
                                 material_from_json({{"type", "prefiltered"}, {"model", dir}, {"level", kFactor},
                                                     {"estimator", "stratified"}, {"estimator_nodes", nodes}})});
+            if (b.lobes) {  // the same map and options with --flow lobes
+                build_small_model(b, dir + "_lobes", true);
+                mats.push_back({fmt::format("prefiltered:{}:lobes", b.name),
+                                material_from_json({{"type", "prefiltered"}, {"model", dir + "_lobes"}, {"level", kFactor}})});
+            }
             for (auto &[name, m] : mats) {
                 keep.push_back(m);
                 register_material(name, m.get());

@@ -1,0 +1,412 @@
+// The closed-form per-lobe f'_low ("--flow lobes"); the model and its derivation are in lobe_brdf.h.
+#include "prefilter/lobe_brdf.h"
+#include <algorithm>
+#include <cmath>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include <smmintrin.h>
+#include "core/error.h"
+#include "core/frame.h"
+#include "core/properties.h"
+#include "filter/vmf.h"
+
+namespace meso::prefilter {
+
+namespace {
+constexpr float kPiF = 3.14159265358979f;
+constexpr double kPiD = 3.14159265358979323846;
+
+/// C(t, κ) and H(t, κ) on a grid: t ∈ [−1, 1] in kT nodes (one at t = 0, where κ → ∞ kinks),
+/// rows s = √κ / (√κ + kRowScale) ∈ [0, 1] in kK nodes (the last row is κ = ∞: max(0, t) and the
+/// step; the one before κ ≈ 1.6e4, where the kinks are narrower than a column).
+struct VmfTables {
+    static constexpr int kT = 129, kK = 65;
+    static constexpr double kRowScale = 2.0;
+    std::vector<float> C, H;  ///< row-major [row * kT + column]
+    VmfTables() : C(size_t(kT) * kK), H(size_t(kT) * kK) {
+        for (int r = 0; r < kK; ++r)
+            for (int i = 0; i < kT; ++i) {
+                const double t = std::clamp(-1.0 + 2.0 * i / (kT - 1), -1.0, 1.0);
+                const size_t k = size_t(r) * kT + size_t(i);
+                if (r == kK - 1) {
+                    C[k] = float(std::max(0.0, t));
+                    H[k] = t > 0.0 ? 1.f : t < 0.0 ? 0.f : 0.5f;
+                    continue;
+                }
+                const double s = double(r) / (kK - 1), kappa = std::pow(kRowScale * s / (1.0 - s), 2.0);
+                const Vec3 mu(float(std::sqrt(std::max(0.0, 1.0 - t * t))), 0.f, float(t));
+                C[k] = float(vmf_projected_area(mu, kappa));
+                H[k] = float(vmf_cap_mass(mu, kappa));
+            }
+    }
+    static float row(double kappa) {
+        const double q = std::sqrt(std::max(0.0, kappa)), s = std::isinf(kappa) ? 1.0 : q / (q + kRowScale);
+        return float(std::clamp(s, 0.0, 1.0) * (kK - 1));
+    }
+    static float lookup(const std::vector<float> &tab, float t, float row) {
+        const float x = std::clamp((t + 1.f) * 0.5f * (kT - 1), 0.f, float(kT - 1));
+        const int i = std::min(int(x), kT - 2), r = std::min(int(row), kK - 2);
+        const float fx = x - float(i), fy = row - float(r);
+        const float *a = &tab[size_t(r) * kT + size_t(i)], *b = a + kT;
+        return (1.f - fy) * ((1.f - fx) * a[0] + fx * a[1]) + fy * ((1.f - fx) * b[0] + fx * b[1]);
+    }
+};
+
+const VmfTables &vmf_tables() {
+    static const VmfTables t;
+    return t;
+}
+
+/// e^x for x <= 0 in four lanes (Cephes' expf: 2^n times a degree-6 polynomial on
+/// [−ln2/2, ln2/2]; relative error ~2e-7; 0 below −87). Used by eval AND pdf, so they agree.
+inline __m128 exp_nonpositive(__m128 x) {
+    const __m128 lo = _mm_set1_ps(-87.f);
+    const __m128 under = _mm_cmplt_ps(x, lo);
+    x = _mm_max_ps(x, lo);
+    const __m128 n = _mm_floor_ps(_mm_add_ps(_mm_mul_ps(x, _mm_set1_ps(1.44269504088896341f)), _mm_set1_ps(0.5f)));
+    const __m128 r = _mm_sub_ps(_mm_sub_ps(x, _mm_mul_ps(n, _mm_set1_ps(0.693359375f))),
+                                _mm_mul_ps(n, _mm_set1_ps(-2.12194440e-4f)));
+    __m128 p = _mm_set1_ps(1.9875691500e-4f);
+    for (float k : {1.3981999507e-3f, 8.3334519073e-3f, 4.1665795894e-2f, 1.6666665459e-1f, 5.0000001201e-1f})
+        p = _mm_add_ps(_mm_mul_ps(p, r), _mm_set1_ps(k));
+    p = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_mul_ps(p, r), r), r), _mm_set1_ps(1.f));
+    const __m128i e = _mm_slli_epi32(_mm_add_epi32(_mm_cvtps_epi32(n), _mm_set1_epi32(127)), 23);
+    return _mm_andnot_ps(under, _mm_mul_ps(p, _mm_castsi128_ps(e)));
+}
+
+/// Smith Λ of four lobes for directions at cosines z to μ: Walter et al. 2007's rational form for
+/// Beckmann (eq. 27), the exact one for GGX. Lanes with z <= 0 give garbage (masked by the caller).
+inline __m128 lambda4(bool ggx, __m128 alpha, __m128 a2, __m128 z) {
+    const __m128 one = _mm_set1_ps(1.f), z2 = _mm_mul_ps(z, z);
+    const __m128 s2 = _mm_max_ps(_mm_setzero_ps(), _mm_sub_ps(one, z2));
+    if (ggx)
+        return _mm_mul_ps(_mm_set1_ps(0.5f),
+                          _mm_sub_ps(_mm_sqrt_ps(_mm_add_ps(one, _mm_div_ps(_mm_mul_ps(a2, s2), z2))), one));
+    const __m128 a = _mm_div_ps(z, _mm_mul_ps(alpha, _mm_sqrt_ps(s2)));  // +inf at z = 1: Λ = 0 below
+    const __m128 num = _mm_add_ps(_mm_sub_ps(one, _mm_mul_ps(_mm_set1_ps(1.259f), a)),
+                                  _mm_mul_ps(_mm_set1_ps(0.396f), _mm_mul_ps(a, a)));
+    const __m128 den = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(3.535f), a), _mm_mul_ps(_mm_set1_ps(2.181f), _mm_mul_ps(a, a)));
+    return _mm_and_ps(_mm_cmplt_ps(a, _mm_set1_ps(1.6f)), _mm_div_ps(num, den));
+}
+
+inline float hsum(__m128 v) {
+    v = _mm_add_ps(v, _mm_movehl_ps(v, v));
+    v = _mm_add_ss(v, _mm_shuffle_ps(v, v, 1));
+    return _mm_cvtss_f32(v);
+}
+
+/// The probe of make_lobe_base: wo and wi mirrored about z at cosine c (so h = z and ωi·h = c).
+void mirrored_pair(double c, Vec3 &wo, Vec3 &wi) {
+    const float s = float(std::sqrt(std::max(0.0, 1.0 - c * c)));
+    wo = Vec3(s, 0.f, float(c));
+    wi = Vec3(-s, 0.f, float(c));
+}
+
+/// The conductor's F(c) · specular_reflectance, from its eval at the mirrored pair (h = z).
+std::vector<Spectrum> probe_fresnel(const Material &m, const MicrofacetDistribution &d, const std::string &where) {
+    std::vector<Spectrum> F(LobeBase::kFresnelNodes);
+    const Vec3 z(0.f, 0.f, 1.f);
+    ShadingContext ctx, ctx2;
+    ctx2.uv = Vec2(0.37f, 0.71f);
+    for (int k = 1; k < LobeBase::kFresnelNodes; ++k) {
+        const double c = double(k) / (LobeBase::kFresnelNodes - 1);
+        Vec3 wo, wi;
+        mirrored_pair(c, wo, wi);
+        const double dg = double(d.D(z)) * d.G(wo, wi, z) / (4.0 * c);
+        const Spectrum e = m.eval(ctx, wo, wi), e2 = m.eval(ctx2, wo, wi);
+        if (!(dg > 0.0) || e.r != e2.r || e.g != e2.g || e.b != e2.b)
+            throw MesoError(fmt::format("{}: --flow lobes needs a conductor whose reflectance is the same everywhere "
+                                        "(no textured specular_reflectance)", where));
+        F[size_t(k)] = e * float(1.0 / dg);
+    }
+    F[0] = F[1] * 2.f - F[2];  // extrapolated: the probe's G vanishes at grazing
+    for (int q = 0; q < 3; ++q) F[0][q] = std::max(0.f, F[0][q]);
+    return F;
+}
+
+/// The table must reproduce the base (isotropic Cook-Torrance with microfacet.h's D and G).
+void check_microfacet_base(const LobeBase &lb, const MicrofacetDistribution &d, const std::string &where) {
+    const Vec3 dirs[] = {normalize(Vec3(0.3f, 0.1f, 0.9f)), normalize(Vec3(-0.5f, 0.2f, 0.6f)),
+                         normalize(Vec3(0.1f, -0.7f, 0.4f)), normalize(Vec3(-0.2f, -0.3f, 0.8f))};
+    ShadingContext ctx;
+    for (const Vec3 &wo : dirs)
+        for (const Vec3 &wi : dirs) {
+            const Vec3 h = normalize(wo + wi);
+            const Spectrum e = lb.material->eval(ctx, wo, wi);
+            const Spectrum p = lb.fresnel_at(dot(wi, h)) * float(double(d.D(h)) * d.G(wo, wi, h) / (4.0 * wo.z));
+            for (int q = 0; q < 3; ++q)
+                if (!(std::abs(e[q] - p[q]) <= 1e-3f * std::max(1e-3f, std::abs(e[q]))))
+                    throw MesoError(fmt::format("{}: --flow lobes: the base does not evaluate as an isotropic rough "
+                                                "conductor ({}): use --flow eq5",
+                                                where, lb.material->to_string()));
+        }
+}
+}  // namespace
+
+double widened_alpha(double alpha, double kappa) {
+    const double cap = std::max(alpha, kMaxWidenedAlpha);
+    if (!(kappa > 2.0 / (cap * cap))) return cap;  // also κ = 0 and NaN
+    return std::min(std::sqrt(alpha * alpha + 2.0 / kappa), cap);
+}
+
+float vmf_clamped_cosine(float t, double kappa) {
+    return VmfTables::lookup(vmf_tables().C, t, VmfTables::row(kappa));
+}
+float vmf_cap_mass(float t, double kappa) { return VmfTables::lookup(vmf_tables().H, t, VmfTables::row(kappa)); }
+
+Spectrum LobeBase::fresnel_at(float c) const {
+    const float x = std::clamp(c, 0.f, 1.f) * float(kFresnelNodes - 1);
+    const int i = std::min(int(x), kFresnelNodes - 2);
+    const float f = x - float(i);
+    return fresnel[size_t(i)] * (1.f - f) + fresnel[size_t(i) + 1] * f;
+}
+
+LobeBase make_lobe_base(std::shared_ptr<const Material> material, const nlohmann::json &json,
+                        const std::string &where) {
+    if (!material) throw MesoError(where + ": base material is null");
+    const std::string type = json.is_object() && json.contains("type") && json["type"].is_string()
+                                 ? json["type"].get<std::string>()
+                                 : std::string();
+    LobeBase lb;
+    lb.material = std::move(material);
+    if (type == "diffuse" && lb.material->flags() == BSDF_DiffuseReflection) {
+        lb.kind = LobeBase::Kind::Lambertian;
+        return lb;
+    }
+    if (type != "conductor")
+        throw MesoError(fmt::format("{}: --flow lobes supports a \"diffuse\" or a rough \"conductor\" base given as "
+                                    "an object, not {}: use --flow eq5",
+                                    where, type.empty() ? json.dump() : "\"" + type + "\""));
+    Properties p(json, where, std::make_shared<LoadContext>());
+    const std::optional<MicrofacetDistribution> d = microfacet_from_properties(p, false, 0.f);
+    if (!d) throw MesoError(where + ": --flow lobes needs a rough conductor (alpha >= 1e-4)");
+    lb.kind = LobeBase::Kind::Microfacet;
+    lb.type = d->type();
+    lb.alpha = d->alpha_u();
+    lb.fresnel = probe_fresnel(*lb.material, *d, where);
+    check_microfacet_base(lb, *d, where);
+    return lb;
+}
+
+// ---------------------------------------------------------------------------------------
+
+SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height)
+    : m_base(std::move(base)), m_w(width), m_h(height) {
+    if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
+        throw MesoError(fmt::format("lobes f'_low: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
+    m_first.reserve(ndf.size() + 1);
+    for (size_t k = 0; k < ndf.size(); ++k) {
+        m_first.push_back(uint32_t(m_lobes.size()));
+        const PatchNdf &P = ndf[k];
+        if (!std::isfinite(P.amplitude) || P.amplitude < 0.0)
+            throw MesoError(fmt::format("lobes f'_low: patch {}: NDF amplitude must be finite and >= 0, got {}", k,
+                                        P.amplitude));
+        for (size_t j = 0; j < P.lobes.size(); ++j) {
+            const VmfLobe &v = P.lobes[j];
+            const double ml = std::sqrt(double(v.mu.x) * v.mu.x + double(v.mu.y) * v.mu.y + double(v.mu.z) * v.mu.z);
+            if (std::isnan(v.kappa) || v.kappa < 0.0 || !std::isfinite(v.weight) || v.weight < 0.0 || !(ml > 0.0) ||
+                !std::isfinite(ml))
+                throw MesoError(fmt::format("lobes f'_low: patch {}: invalid lobe {} (kappa {}, weight {}, |mu| {})", k,
+                                            j, v.kappa, v.weight, ml));
+            Lobe l;
+            l.mu = Vec3(float(v.mu.x / ml), float(v.mu.y / ml), float(v.mu.z / ml));
+            const double kappa = std::min(v.kappa, vmf::kMaxKappa);
+            l.krow = VmfTables::row(kappa);
+            l.hz = VmfTables::lookup(vmf_tables().H, l.mu.z, l.krow);
+            l.c = float(P.amplitude * v.weight * l.hz);
+            if (!(l.c > 0.f) || !(l.hz > 0.f)) continue;
+            const double a = widened_alpha(m_base.alpha, kappa);
+            l.alpha = float(a);
+            l.inv_a2 = float(1.0 / (a * a));
+            l.d_norm = float(m_base.type == MicrofacetType::GGX ? a * a / kPiD : 1.0 / (kPiD * a * a));
+            const double ks = vmf::convolve_kappa(kappa, kCosineKappa);
+            l.kappa_s = float(ks);
+            l.vmf_norm = float(ks > 1e-8 ? ks / (2.0 * kPiD * -std::expm1(-2.0 * ks)) : 1.0 / (4.0 * kPiD));
+            m_lobes.push_back(l);
+        }
+    }
+    m_first.push_back(uint32_t(m_lobes.size()));
+    // The same lobes by component, four per block.
+    m_first_block.reserve(m_first.size());
+    for (size_t k = 0; k + 1 < m_first.size(); ++k) {
+        m_first_block.push_back(uint32_t(m_blocks.size()));
+        for (uint32_t j = m_first[k]; j < m_first[k + 1]; ++j) {
+            if ((j - m_first[k]) % 4 == 0) m_blocks.emplace_back();
+            LobeBlock &B = m_blocks.back();
+            const Lobe &l = m_lobes[j];
+            const int q = int((j - m_first[k]) % 4);
+            B.mx[q] = l.mu.x, B.my[q] = l.mu.y, B.mz[q] = l.mu.z, B.c[q] = l.c;
+            B.alpha[q] = l.alpha, B.a2[q] = l.alpha * l.alpha, B.inv_a2[q] = l.inv_a2, B.d_norm[q] = l.d_norm;
+        }
+    }
+    m_first_block.push_back(uint32_t(m_blocks.size()));
+}
+
+size_t SvLobeBrdf::patch_index(Vec2 uv) const {
+    const float u = uv.x - std::floor(uv.x), v = uv.y - std::floor(uv.y);
+    const int i = std::clamp(int(u * float(m_w)), 0, m_w - 1), j = std::clamp(int(v * float(m_h)), 0, m_h - 1);
+    return size_t(j) * size_t(m_w) + size_t(i);
+}
+
+std::pair<const SvLobeBrdf::Lobe *, const SvLobeBrdf::Lobe *> SvLobeBrdf::lobes(Vec2 uv) const {
+    const size_t k = patch_index(uv);
+    const Lobe *base = m_lobes.data();
+    return {base + m_first[k], base + m_first[k + 1]};
+}
+
+Spectrum SvLobeBrdf::lambert(const ShadingContext &ctx) const {
+    const Vec3 z(0.f, 0.f, 1.f);
+    return m_base.material->eval(ctx, z, z);
+}
+
+Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
+    const Vec3 h = normalize(wo + wi);
+    const float dwh = dot(wo, h);
+    if (!(dwh > 0.f)) return Spectrum(0.f);
+    // Four lobes per step (SSE); lanes that fail a condition are masked to 0 after the fact, so
+    // the infinities and NaNs of their divisions never reach the sums.
+    const bool ggx = m_base.type == MicrofacetType::GGX;
+    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f);
+    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
+    const __m128 ix = _mm_set1_ps(wi.x), iy = _mm_set1_ps(wi.y), iz = _mm_set1_ps(wi.z);
+    const __m128 hx = _mm_set1_ps(h.x), hy = _mm_set1_ps(h.y), hz = _mm_set1_ps(h.z);
+    __m128 sum = zero, psum = zero, ptot = zero;
+    for (uint32_t b = m_first_block[patch]; b < m_first_block[patch + 1]; ++b) {
+        const LobeBlock &B = m_blocks[b];
+        const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz), c = _mm_load_ps(B.c);
+        auto dot4 = [&](__m128 x, __m128 y, __m128 z) {
+            return _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, x), _mm_mul_ps(my, y)), _mm_mul_ps(mz, z));
+        };
+        const __m128 lo = dot4(ox, oy, oz), li = dot4(ix, iy, iz), ch = dot4(hx, hy, hz);
+        const __m128 faces = _mm_cmpgt_ps(lo, zero);
+        ptot = _mm_add_ps(ptot, _mm_and_ps(faces, c));
+        const __m128 c2 = _mm_mul_ps(ch, ch);
+        const __m128 ok = _mm_and_ps(_mm_and_ps(faces, _mm_cmpgt_ps(li, zero)),
+                                     _mm_and_ps(_mm_cmpgt_ps(ch, zero), _mm_cmpgt_ps(c2, _mm_set1_ps(1e-12f))));
+        if (_mm_movemask_ps(ok) == 0) continue;
+        const __m128 a2 = _mm_load_ps(B.a2), dn = _mm_load_ps(B.d_norm);
+        __m128 D;
+        if (ggx) {
+            const __m128 d = _mm_add_ps(_mm_mul_ps(c2, _mm_sub_ps(a2, one)), one);
+            D = _mm_div_ps(dn, _mm_mul_ps(d, d));
+        } else {
+            const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
+            D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(_mm_mul_ps(_mm_sub_ps(zero, t2), _mm_load_ps(B.inv_a2)))),
+                           _mm_mul_ps(c2, c2));
+        }
+        D = _mm_and_ps(ok, D);
+        psum = _mm_add_ps(psum, _mm_mul_ps(_mm_mul_ps(c, D), ch));
+        const __m128 al = _mm_load_ps(B.alpha);
+        const __m128 G = _mm_div_ps(one, _mm_add_ps(one, _mm_add_ps(lambda4(ggx, al, a2, lo), lambda4(ggx, al, a2, li))));
+        const __m128 term = _mm_div_ps(_mm_mul_ps(_mm_mul_ps(c, D), G), _mm_mul_ps(_mm_set1_ps(4.f), lo));
+        sum = _mm_add_ps(sum, _mm_and_ps(ok, term));
+    }
+    const float s = hsum(sum), ps = hsum(psum), pt = hsum(ptot);
+    if (pdf) *pdf = pt > 0.f && std::isfinite(ps) ? ps / (pt * 4.f * dwh) : 0.f;
+    if (!(s > 0.f) || !std::isfinite(s)) return Spectrum(0.f);
+    return m_base.fresnel_at(dot(wi, h)) * s;
+}
+
+Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, const Lobe *e, const Vec3 &wo,
+                                      const Vec3 &wi, float *pdf) const {
+    const VmfTables &tab = vmf_tables();
+    float sum = 0.f, psum = 0.f, ptot = 0.f;
+    for (const Lobe *l = b; l != e; ++l) {
+        const float v = l->c * std::min(1.f, VmfTables::lookup(tab.H, dot(l->mu, wo), l->krow) / l->hz);
+        if (!(v > 0.f)) continue;
+        const float ti = dot(l->mu, wi);
+        ptot += v;
+        sum += v * VmfTables::lookup(tab.C, ti, l->krow);
+        psum += v * l->vmf_norm * std::exp(l->kappa_s * (ti - 1.f));
+    }
+    if (pdf) *pdf = ptot > 0.f ? psum / ptot : 0.f;
+    if (!(sum > 0.f)) return Spectrum(0.f);
+    return lambert(ctx) * sum;
+}
+
+Spectrum SvLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
+    if (pdf) *pdf = 0.f;
+    if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
+    if (m_base.kind == LobeBase::Kind::Microfacet) return eval_pdf_microfacet(patch_index(ctx.uv), wo, wi, pdf);
+    const auto [b, e] = lobes(ctx.uv);
+    return eval_pdf_lambert(ctx, b, e, wo, wi, pdf);
+}
+
+float SvLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
+    float p = 0.f;
+    eval_pdf(ctx, wo, wi, &p);
+    return p;
+}
+
+const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const {
+    const bool mf = m_base.kind == LobeBase::Kind::Microfacet;
+    float w[64];
+    const int n = int(std::min<ptrdiff_t>(e - b, 64));
+    float total = 0.f;
+    for (int j = 0; j < n; ++j) {
+        const float t = dot(b[j].mu, wo);
+        w[j] = mf ? (t > 0.f ? b[j].c : 0.f)
+                  : b[j].c * std::min(1.f, VmfTables::lookup(vmf_tables().H, t, b[j].krow) / b[j].hz);
+        total += w[j];
+    }
+    if (!(total > 0.f)) return nullptr;
+    float target = u_lobe * total;
+    for (int j = 0; j < n; ++j) {
+        if (w[j] > 0.f && (target < w[j] || j == n - 1)) return b + j;
+        target -= w[j];
+    }
+    for (int j = n - 1; j >= 0; --j)  // round-off left the target past the end: the last one with weight
+        if (w[j] > 0.f) return b + j;
+    return nullptr;
+}
+
+bool SvLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
+    if (!(wo.z > 0.f)) return false;
+    const auto [b, e] = lobes(ctx.uv);
+    const Lobe *l = choose(b, e, wo, u_lobe);
+    if (!l) return false;
+    Vec3 wi;
+    if (m_base.kind == LobeBase::Kind::Microfacet) {
+        // The full NDF D (m·μ) in the lobe's frame: tan²θ in closed form.
+        const float ux = std::min(u.x, 0x1.fffffep-1f), a2 = l->alpha * l->alpha;
+        const float tan2 = m_base.type == MicrofacetType::GGX ? a2 * ux / (1.f - ux) : -a2 * std::log1p(-ux);
+        const float ct = 1.f / std::sqrt(1.f + tan2), st = std::sqrt(std::max(0.f, 1.f - ct * ct));
+        const float phi = 2.f * kPiF * u.y;
+        const Vec3 m = normalize(Frame(l->mu).to_world(Vec3(st * std::cos(phi), st * std::sin(phi), ct)));
+        const float d = dot(wo, m);
+        if (!(d > 0.f)) return false;
+        wi = normalize(m * (2.f * d) - wo);
+        if (!(dot(l->mu, wi) > 0.f)) return false;  // outside the lobe's hemisphere (pdf counts it out)
+    } else {
+        wi = vmf::sample(l->mu, double(l->kappa_s), u);
+    }
+    if (!(wi.z > 0.f)) return false;
+    float p = 0.f;
+    const Spectrum f = eval_pdf(ctx, wo, wi, &p);
+    if (!(p > 0.f) || !std::isfinite(p)) return false;
+    out.wi = wi;
+    out.pdf = p;
+    out.weight = f / p;
+    out.eta = 1.f;
+    out.flags = flags();
+    return true;
+}
+
+uint32_t SvLobeBrdf::flags() const {
+    return m_base.kind == LobeBase::Kind::Microfacet ? BSDF_GlossyReflection : BSDF_DiffuseReflection;
+}
+
+Spectrum SvLobeBrdf::albedo_hint(const ShadingContext &ctx) const {
+    return m_base.kind == LobeBase::Kind::Microfacet ? m_base.fresnel_at(1.f) : lambert(ctx) * kPiF;
+}
+
+std::string SvLobeBrdf::to_string() const {
+    return fmt::format("SvLobeBrdf[{}x{} patches, {} lobes, base {}]", m_w, m_h, m_lobes.size(),
+                       m_base.material->to_string());
+}
+
+void SvLobeBrdf::eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const {
+    for (int k = 0; k < n; ++k) out[k] = eval_pdf(ctx, wo, wi[k], nullptr);
+}
+
+}  // namespace meso::prefilter

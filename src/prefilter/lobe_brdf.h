@@ -1,0 +1,174 @@
+// The closed-form per-lobe f'_low ("--flow lobes"): a cheap deterministic stand-in for the
+// quadrature of paper 004's eq. 5 (prefilter/multilobe_brdf.h), for the `prefiltered` material's
+// cost target (issue 21 item 3: eval + sample + pdf at most 1.5x the base's).
+//
+// Why an approximation is allowed. The scaling tables are ratios R = f_eff(original) /
+// f_eff(h_low, f'_low) (prefilter/scaling.h): when `meso prefilter` fits T and S with THIS f'_low,
+// and the renderer shades with the same f'_low, the approximation is part of the model and is
+// absorbed by T and S like eq. 5's own modelling error. The form is therefore recorded in the
+// model (manifest parameters.flow = "lobes") and the renderer refuses to mix forms.
+//
+// The form. Each vMF lobe j of the patch NDF (mean μ_j, concentration κ_j, weight a_j, amplitude
+// A; patch_ndf.h) convolved with the base gives ONE base-like lobe in the frame of μ_j:
+//
+//   eval(ωo, ωi) = Σ_j c_j g_j(ωo, ωi),      c_j = A a_j H(μ_j,z, κ_j)
+//
+// H(t, κ) = ∫ γ(ω; μ, κ) [ω·n > 0] dω with t = μ·n (the lobe's mass above a plane; here the macro
+// horizon, which eq. 4 cuts off), so that Σ_j c_j is the limit of eq. 5's node weights.
+//
+// * Microfacet base (rough conductor, Beckmann or GGX, isotropic): the base's D and Smith G in
+//   the frame of μ_j with the roughness widened by the lobe's spread. Derivation: for small
+//   angles a vMF lobe is a Gaussian in the tangent-plane angle, γ ∝ exp(κ cos θ) ≈ e^κ
+//   exp(−κ θ²/2), variance 1/κ per axis; Beckmann's D ∝ exp(−|s|²/α²) is a Gaussian in slope s
+//   (≈ angle) with variance α²/2 per axis. The micro-normal of the base is tilted by the lobe's
+//   normal, so the variances add: α'²/2 = α²/2 + 1/κ, i.e.
+//       α'² = α² + 2/κ                                           (widened_alpha)
+//   (not 1/(2κ): that is the spread of REFLECTED directions, twice the normal's angle). κ → ∞
+//   gives the base (α' = α). κ → 0 (a uniform sphere of normals) would give α' → ∞, whose Beckmann
+//   lobe puts its mass at the horizon and reflects almost nothing (0.22 of eq. 5 at κ = 0.3); the
+//   widening stops at kMaxWidenedAlpha = 1 instead, where GGX's D is exactly the uniform 1/π and
+//   Beckmann's matches it at the pole (a base rougher than that keeps its own α). GGX uses the
+//   same α' (GGX's slope variance is infinite; α is its core width).
+//       g_j = F(ωi·h) D_α'(h; μ_j) G_α'(ωo, ωi; μ_j) / (4 μ_j·ωo)       (μ_j·ωo, μ_j·ωi, μ_j·h > 0)
+//   h = normalize(ωo + ωi) is frame-independent, so the Fresnel term F(ωi·h) (times the base's
+//   specular_reflectance) is evaluated ONCE per (ωo, ωi), from a 64-entry table probed from the
+//   base material itself at construction. G is the height-correlated Smith 1/(1 + Λ(ωo) + Λ(ωi))
+//   of microfacet.h, with Walter et al. 2007's rational Λ for Beckmann (no erf) and the exact Λ
+//   for GGX (one sqrt).
+// * Lambertian base (`diffuse`, any reflectance texture, read through the base's own eval):
+//       c_j g_j = A a_j · ρ/π · C(μ_j·ωi, κ_j) · min(H(μ_j,z, κ_j), H(μ_j·ωo, κ_j))
+//   C(t, κ) = ∫ γ(ω; μ, κ) max(0, ω·ωi) dω (t = μ·ωi) is the vMF-convolved clamped cosine,
+//   exactly what eq. 5 gives for the ωi side; eq. 5's two other cuts, the macro horizon
+//   [ω_z > 0] and the viewer's [ω·ωo > 0], become the smaller of the two masses (ωo is above the
+//   horizon, so the cuts overlap: their product would count the overlap twice, 0.38 of eq. 5
+//   for κ = 0 instead of 0.76). Smooth, no hard line where ωo crosses a facet plane. C and H are
+//   tabulated (vmf_clamped_cosine, vmf_cap_mass).
+//
+// Sampling: lobe j with probability P_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) (v = [μ_j·ωo > 0] for
+// microfacet lobes, min(1, H(μ_j·ωo, κ_j) / H(μ_j,z, κ_j)) for Lambertian ones), then
+//   microfacet: the FULL NDF D_α'(m; μ_j)(m·μ_j) in the frame of μ_j (closed form, no inverted
+//     CDF), ωi = reflect(ωo, m); density D (m·μ_j) / (4 ωo·m) where μ_j·ωi > 0;
+//   Lambertian: a vMF around μ_j with κ'_j = κ_j κ_c / (κ_j + κ_c), κ_c = kCosineKappa (the clamped
+//     cosine's vMF stand-in, convolved with the lobe; exact sampling and density, support on the
+//     whole sphere, so every direction with eval > 0 can be drawn).
+// Directions below the macro horizon fail (sample returns false). pdf is the exact density of
+// that procedure (the mixture over j), so the χ² test holds and weight = eval / pdf exactly.
+//
+// Not reciprocal (neither is eq. 5). Cost: one pass over the patch's lobes (≤ 6 by default; the
+// microfacet pass four lobes per SSE step, one vector exp for Beckmann), the Fresnel lookup once;
+// sample adds one pass for the choice and one eval_pdf pass at the sampled direction. Measured
+// (docs/performance.md): a `prefiltered` shading sample costs 0.75x a Beckmann conductor base's,
+// 1.9x a GGX one's (the S lookups are most of the rest), 30x a Lambertian's.
+#pragma once
+#include <memory>
+#include <string>
+#include <vector>
+#include <nlohmann/json_fwd.hpp>
+#include "bsdf/material.h"
+#include "bsdf/microfacet.h"
+#include "prefilter/patch_ndf.h"
+
+namespace meso::prefilter {
+
+/// Where widening stops (κ → 0): GGX with α = 1 is the uniform NDF D = 1/π.
+constexpr double kMaxWidenedAlpha = 1.0;
+/// κ of the vMF that stands in for a clamped cosine when sampling Lambertian lobes (Wang et al.
+/// 2009's fit, cos⁺ ≈ 2.133 · vMF-shaped lobe).
+constexpr double kCosineKappa = 2.133;
+
+/// α' = sqrt(α² + 2/κ) (see the header), at most max(α, kMaxWidenedAlpha); κ = 0 and κ = ∞ allowed.
+double widened_alpha(double alpha, double kappa);
+/// C(t, κ) = ∫ γ(ω; μ, κ) max(0, ω·n) dω for t = μ·n ∈ [−1, 1], κ ∈ [0, ∞]: bilinear in a table
+/// of vmf_projected_area (exact at κ = 0: 1/4, and κ = ∞: max(0, t)).
+float vmf_clamped_cosine(float t, double kappa);
+/// H(t, κ) = ∫ γ(ω; μ, κ) [ω·n > 0] dω for t = μ·n: bilinear in a table (exact at κ = 0: 1/2,
+/// κ = ∞: the step at t = 0, ramped over one table cell).
+float vmf_cap_mass(float t, double kappa);
+/// (The exact values are vmf_projected_area and vmf_cap_mass of patch_ndf.h at μ = (sqrt(1 − t²), 0, t).)
+
+/// The base material as the lobes form uses it.
+struct LobeBase {
+    enum class Kind { Lambertian, Microfacet };
+    Kind kind = Kind::Lambertian;
+    MicrofacetType type = MicrofacetType::Beckmann;
+    double alpha = 0.0;
+    static constexpr int kFresnelNodes = 64;
+    std::vector<Spectrum> fresnel;  ///< F(c) · specular_reflectance at c = k / (kFresnelNodes − 1)
+    std::shared_ptr<const Material> material;
+    /// F(ωi·h) · specular_reflectance, linear between the table's nodes.
+    Spectrum fresnel_at(float c) const;
+};
+
+/// Recognises the base (`json` is its scene object, `where` names it in errors): "diffuse"
+/// (Lambertian) or a rough isotropic "conductor" whose reflectance is constant over the surface;
+/// the conductor's Fresnel table is probed from material->eval and checked against it. Throws
+/// MesoError otherwise (plastic, gltf_pbr, anisotropic, textured specular_reflectance, ...).
+LobeBase make_lobe_base(std::shared_ptr<const Material> material, const nlohmann::json &json,
+                        const std::string &where);
+
+/// The lobes-form f'_low of a whole level (one lobe list per patch), a Material in the MACRO
+/// frame like SvMultiLobe: patch (I, J) = floor(frac(uv) (W/F, H/F)).
+class SvLobeBrdf final : public Material {
+public:
+    /// One lobe of one patch (see the header).
+    struct Lobe {
+        Vec3 mu;              ///< μ_j (unit)
+        float c = 0.f;        ///< c_j = A a_j H(μ_j,z, κ_j)
+        float alpha = 0.f;    ///< α' (microfacet)
+        float inv_a2 = 0.f;   ///< 1 / α'²
+        float d_norm = 0.f;   ///< Beckmann 1 / (π α'²); GGX α'² / π
+        float krow = 0.f;     ///< κ_j as a row coordinate of the C and H tables (Lambertian)
+        float kappa_s = 0.f;  ///< κ'_j of the Lambertian sampler
+        float vmf_norm = 0.f; ///< κ'_j / (2π (1 − e^{−2κ'_j})): the sampler's density at μ_j
+        float hz = 0.f;       ///< H(μ_j,z, κ_j) (> 0)
+    };
+
+    SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height);
+
+    Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
+        return eval_pdf(ctx, wo, wi, nullptr);
+    }
+    float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
+    Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const override;
+    bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override;
+    uint32_t flags() const override;
+    Spectrum albedo_hint(const ShadingContext &ctx) const override;
+    bool is_reciprocal() const override { return false; }
+    std::string to_string() const override;
+
+    /// eval(ctx, wo, wi[b]) for b < n into out[b] (the prefilter's next-event splat).
+    void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
+    /// The lobes of the patch holding uv: [first, last).
+    std::pair<const Lobe *, const Lobe *> lobes(Vec2 uv) const;
+    const LobeBase &base() const { return m_base; }
+    size_t memory_bytes() const {
+        return m_lobes.size() * sizeof(Lobe) + m_blocks.size() * sizeof(LobeBlock) +
+               (m_first.size() + m_first_block.size()) * sizeof(uint32_t);
+    }
+
+private:
+    /// ρ/π of a Lambertian base at ctx (its eval at normal incidence).
+    Spectrum lambert(const ShadingContext &ctx) const;
+    Spectrum eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const;
+    size_t patch_index(Vec2 uv) const;
+    Spectrum eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, const Lobe *e, const Vec3 &wo,
+                              const Vec3 &wi, float *pdf) const;
+    /// The lobe chosen by u_lobe for wo (P_j of the header); null when none faces wo.
+    const Lobe *choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const;
+
+    /// Four lobes of one patch by component (eval_pdf_microfacet's SSE pass); unused lanes have
+    /// c = 0 and μ = 0 (they face nothing).
+    struct alignas(16) LobeBlock {
+        float mx[4] = {}, my[4] = {}, mz[4] = {}, c[4] = {}, alpha[4] = {}, a2[4] = {}, inv_a2[4] = {},
+              d_norm[4] = {};
+    };
+
+    LobeBase m_base;
+    std::vector<Lobe> m_lobes;
+    std::vector<uint32_t> m_first;  ///< patch k's lobes are m_lobes[m_first[k] .. m_first[k + 1])
+    std::vector<LobeBlock> m_blocks;
+    std::vector<uint32_t> m_first_block;  ///< patch k's blocks: m_blocks[m_first_block[k] .. [k + 1])
+    int m_w = 0, m_h = 0;
+};
+
+}  // namespace meso::prefilter
