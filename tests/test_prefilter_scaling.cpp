@@ -298,7 +298,7 @@ TEST(CmdPrefilter, LodRefusesAModelOfAnotherSurface) {
     EXPECT_EQ(PrefilteredModel::load(dir).map_samples.size(), size_t(kMapFingerprintSize));
     // A 2-unit rectangle with tiling 4: tiles of 0.5 world units.
     // The model's base is `meso prefilter`'s default, diffuse 0.8.
-    auto scene_with = [&](const std::string &name, int seed, double scale, int tiling,
+    auto scene_with = [&](const std::string &name, int seed, double scale, const std::string &tiling,
                           const char *material = R"({"type": "diffuse", "reflectance": 0.8})") {
         const std::string path = meso::test::scratch_dir("prefilter_surface") + "/" + name + ".json";
         std::ofstream(path) << fmt::format(R"({{"camera": {{"type": "perspective", "width": 8, "height": 8}},
@@ -307,24 +307,30 @@ TEST(CmdPrefilter, LodRefusesAModelOfAnotherSurface) {
                                            material, seed, scale, tiling, dir);
         return meso::test::run_cli_captured({"render", path, "--plan"});
     };
-    meso::test::CliResult ok = scene_with("same", 3, 0.05, 4);
+    meso::test::CliResult ok = scene_with("same", 3, 0.05, "4");
     EXPECT_EQ(ok.code, 0) << ok.err;
-    meso::test::CliResult map = scene_with("map", 4, 0.05, 4);
+    meso::test::CliResult map = scene_with("map", 4, 0.05, "4");
     EXPECT_NE(map.code, 0);
     EXPECT_NE(map.err.find("shapes[0].lod.model: the model '" + dir + "' was made from another map"), std::string::npos) << map.err;
     EXPECT_NE(map.err.find("the displacement's (generator fbm"), std::string::npos) << map.err;
-    meso::test::CliResult hs = scene_with("height", 3, 0.1, 4);
+    meso::test::CliResult hs = scene_with("height", 3, 0.1, "4");
     EXPECT_NE(hs.code, 0);
     EXPECT_NE(hs.err.find("was made with --height-scale 0.05 but the displacement's scale is 0.1"), std::string::npos) << hs.err;
-    meso::test::CliResult tile = scene_with("tile", 3, 0.05, 8);
+    meso::test::CliResult tile = scene_with("tile", 3, 0.05, "8");
     EXPECT_NE(tile.code, 0);
     EXPECT_NE(tile.err.find("was made with --tile-size 0.5 (world size of one tile of its map), but on this shape one tile "
                             "of the displacement's map is 0.25 x 0.25 world units"),
               std::string::npos)
         << tile.err;
+    // Tiles that are not square (0.5 x 1): a model's cells are square, any size between the two fits.
+    meso::test::CliResult oblong = scene_with("oblong", 3, 0.05, "[4, 2]");
+    EXPECT_EQ(oblong.code, 0) << oblong.err;
+    meso::test::CliResult oblong_small = scene_with("oblong_small", 3, 0.05, "[8, 16]");
+    EXPECT_NE(oblong_small.err.find("one tile of the displacement's map is 0.25 x 0.125 world units"), std::string::npos)
+        << oblong_small.err;
     // The same BRDF written differently is the same base; another BRDF is not.
-    EXPECT_EQ(scene_with("base_same", 3, 0.05, 4, R"({"reflectance": [0.8, 0.8, 0.8], "type": "diffuse"})").code, 0);
-    meso::test::CliResult base = scene_with("base", 3, 0.05, 4, R"({"type": "conductor", "material": "Au", "alpha": 0.3})");
+    EXPECT_EQ(scene_with("base_same", 3, 0.05, "4", R"({"reflectance": [0.8, 0.8, 0.8], "type": "diffuse"})").code, 0);
+    meso::test::CliResult base = scene_with("base", 3, 0.05, "4", R"({"type": "conductor", "material": "Au", "alpha": 0.3})");
     EXPECT_NE(base.code, 0);
     EXPECT_NE(base.err.find("was made with base material {\"reflectance\":0.8,\"type\":\"diffuse\"} but the shape's "
                             "material is another BRDF"),

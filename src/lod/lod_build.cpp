@@ -99,12 +99,17 @@ std::string map_mismatch(const prefilter::PrefilteredModel &model, const Displac
 }
 
 /// Where one tile of the map is not model.tile_size world units on `shape` (its uv lengths over
-/// the tiling): a message naming both, or "" (also when the shape's uv lengths are unknown).
+/// the tiling): a message naming both, or "" (also when the shape's uv lengths are unknown). A
+/// model has square cells; where the shape's tiles are not square (a uv sphere's, whose u length
+/// also shrinks towards the poles) no tile size fits both axes, and any between the two is taken.
 std::string tile_mismatch(const prefilter::PrefilteredModel &model, const Displacement &disp, const Shape &shape) {
     double lu = 0, lv = 0;
     if (!shape.uv_world_length(lu, lv) || !(lu > 0) || !(lv > 0)) return "";
     const double tu = lu / double(disp.tiling_u), tv = lv / double(disp.tiling_v), ts = model.tile_size;
     if (std::abs(tu - ts) <= 1e-3 * ts && std::abs(tv - ts) <= 1e-3 * ts) return "";
+    if (std::abs(tu - tv) > 1e-3 * std::max(tu, tv) && ts >= std::min(tu, tv) * (1 - 1e-3) &&
+        ts <= std::max(tu, tv) * (1 + 1e-3))
+        return "";
     return fmt::format("the model '{}' was made with --tile-size {:.6g} (world size of one tile of its map), but on this shape "
                        "one tile of the displacement's map is {:.6g} x {:.6g} world units (uv lengths {:.6g} x {:.6g} over "
                        "tiling {:g} x {:g}); `meso info` prints the values to prefilter with",
