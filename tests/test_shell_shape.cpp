@@ -109,6 +109,17 @@ struct MappedFieldComparison {
         }
         worst = std::max(worst, err);
     }
+
+    /// The verdict of a comparison: at least min_compared hits, at most one graze in graze_per,
+    /// no disagreement and every hit within 1e-5 (1 + t); prints the counts under `label`.
+    void expect_agreement(int min_compared, int graze_per, float tiling, const char *label) const {
+        EXPECT_GT(compared, min_compared) << tiling;
+        EXPECT_LE(grazes, compared / graze_per) << tiling;
+        EXPECT_EQ(disagree, 0) << tiling;
+        EXPECT_LE(worst, 1.0) << "tiling " << tiling << ": worst |t_shell - t_field| in units of 1e-5 (1 + t), grazes left out";
+        std::printf("[%s] tiling %g: %d hits compared, %d grazes, worst %.3g x 1e-5 (1 + t)\n", label, tiling, compared,
+                    grazes, worst);
+    }
 };
 
 /// The direction at angle theta (radians) from -z and azimuth phi.
@@ -131,12 +142,7 @@ TEST(ShellShape, FlatSquareHitsEqualTheHeightfieldsOnTheMappedRay) {
             const double px = -0.9 + 1.8 * rng.next_double(), py = -0.9 + 1.8 * rng.next_double(), s = 0.2 / std::cos(theta);
             cmp.add(Vec3(float(px - s * d.x), float(py - s * d.y), float(0.1 - s * d.z)), d);
         }
-        EXPECT_GT(cmp.compared, 15000) << tiling;
-        EXPECT_LE(cmp.grazes, cmp.compared / 1000) << tiling;
-        EXPECT_EQ(cmp.disagree, 0) << tiling;
-        EXPECT_LE(cmp.worst, 1.0) << "tiling " << tiling << ": worst |t_shell - t_field| in units of 1e-5 (1 + t), grazes left out";
-        std::printf("[shell vs field] tiling %g: %d hits compared, %d grazes, worst %.3g x 1e-5 (1 + t)\n", tiling,
-                    cmp.compared, cmp.grazes, cmp.worst);
+        cmp.expect_agreement(15000, 1000, tiling, "shell vs field");
     }
 }
 
@@ -177,12 +183,7 @@ TEST(ShellShape, FlatSquareHitsAtPrismEdgesGrazingAndFromTheSurface) {
             }
             cmp.add(o, d);
         }
-        EXPECT_GT(cmp.compared, 9000) << tiling;
-        EXPECT_LE(cmp.grazes, cmp.compared / 100) << tiling;
-        EXPECT_EQ(cmp.disagree, 0) << tiling;
-        EXPECT_LE(cmp.worst, 1.0) << "tiling " << tiling << ": worst |t_shell - t_field| in units of 1e-5 (1 + t), grazes left out";
-        std::printf("[shell vs field, edges] tiling %g: %d hits compared, %d grazes, worst %.3g x 1e-5 (1 + t)\n", tiling,
-                    cmp.compared, cmp.grazes, cmp.worst);
+        cmp.expect_agreement(9000, 100, tiling, "shell vs field, edges");
     }
 }
 
