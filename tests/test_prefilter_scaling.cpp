@@ -425,17 +425,20 @@ TEST(PrefilteredModel, WhiteFurnaceLobes) { white_furnace("lobes"); }
 
 namespace {
 
-/// Brute force for one (ωi bin, ωo bin): the mean over J (ωo, ωi) pairs drawn uniformly in the
-/// two bins' cells of the square of an independent effective-BRDF estimate (effective_brdf.h)
-/// over the whole map (M = 1), green channel; with its standard error over the J pairs.
+/// Brute force for one (ωi bin, ωo bin): the mean over J (ωo, ωi) pairs of an independent
+/// effective-BRDF estimate (effective_brdf.h) over the whole map (M = 1), green channel, with
+/// its standard error over the J pairs; the pairs are the two bins' centres, or with `jitter`
+/// drawn uniformly in the bins' cells of the square (ScalingOptions::jitter_directions).
 std::pair<double, double> brute_force_bin(const EffectiveBrdfEstimator &e, const Heightfield &hf, int N, int bi, int bo,
-                                          int max_bounces, uint64_t seed) {
+                                          int max_bounces, uint64_t seed, bool jitter) {
     const int J = 96;
     PCG32 rng(seed, 3);
     double s = 0, s2 = 0;
     for (int j = 0; j < J; ++j) {
         auto dir = [&](int b) {
-            return square_to_hemisphere(Vec2((float(b % N) + rng.next_float()) / float(N), (float(b / N) + rng.next_float()) / float(N)));
+            const float ja = rng.next_float(), jb = rng.next_float();
+            return square_to_hemisphere(Vec2((float(b % N) + (jitter ? ja : 0.5f)) / float(N),
+                                             (float(b / N) + (jitter ? jb : 0.5f)) / float(N)));
         };
         const Vec3 wo = dir(bo), wi = dir(bi);
         const double v = e.estimate(PatchRegion::whole(hf), wi, wo, 512, seed * 1000 + uint64_t(j), max_bounces).value[1];
@@ -452,8 +455,9 @@ namespace {
 /// grazing ones included, after three rounds of the stopping rule (later rounds trace only
 /// some ωo bins: unequal line counts), against independent estimates of the same integrals;
 /// with `cv_lines` > 0, with the control variate (scaling.h); with `lobes`, f'_low is the closed
-/// form of --flow lobes (evaluated exactly per line instead of by sampled nodes).
-void check_against_brute_force(int cv_lines, bool lobes = false) {
+/// form of --flow lobes (evaluated exactly per line instead of by sampled nodes); with `jitter`,
+/// the directions are jittered in their bins (the bins' averages) instead of at their centres.
+void check_against_brute_force(int cv_lines, bool lobes = false, bool jitter = false) {
     std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", "0.05"}, {"seed", "5"}};
     HeightMap map = generate_height_map("fbm", p).height;
     const char *base_json = R"({"type": "conductor", "material": "Al", "alpha": 0.3})";
@@ -462,6 +466,7 @@ void check_against_brute_force(int cv_lines, bool lobes = false) {
     const int N = 3;
     ScalingOptions o = small_options(1, N, 1600);
     o.cv_lines = cv_lines;
+    o.jitter_directions = jitter;
     // The target: the median over ωo bins of their errors after the first round (the same
     // first round: same seed), so that about half of the bins stop.
     {
@@ -486,7 +491,7 @@ void check_against_brute_force(int cv_lines, bool lobes = false) {
     for (auto [bi, bo] : pairs) {
         for (bool ir : {false, true}) {
             const auto m = est.bin_moments(0, bi, bo, 1, ir);
-            const auto [bf, bf_se] = brute_force_bin(orig_bf, L.orig, N, bi, bo, ir ? kAllBounces : 1, 11 + bi * 9 + bo);
+            const auto [bf, bf_se] = brute_force_bin(orig_bf, L.orig, N, bi, bo, ir ? kAllBounces : 1, 11 + bi * 9 + bo, jitter);
             const double tol = 4.0 * std::hypot(m.num_se, bf_se);
             chi2 += (m.num - bf) * (m.num - bf) / (m.num_se * m.num_se + bf_se * bf_se), ++dof;
             EXPECT_NEAR(m.num, bf, tol) << "numerator bi " << bi << " bo " << bo << (ir ? " ir" : " single") << " se "
@@ -494,7 +499,7 @@ void check_against_brute_force(int cv_lines, bool lobes = false) {
             EXPECT_GT(m.num, 0.0);
         }
         const auto m = est.bin_moments(0, bi, bo, 1, false);
-        const auto [bf, bf_se] = brute_force_bin(low_bf, L.low, N, bi, bo, 1, 71 + bi * 9 + bo);
+        const auto [bf, bf_se] = brute_force_bin(low_bf, L.low, N, bi, bo, 1, 71 + bi * 9 + bo, jitter);
         EXPECT_NEAR(m.den, bf, 4.0 * std::hypot(m.den_se, bf_se)) << "denominator bi " << bi << " bo " << bo;
         chi2 += (m.den - bf) * (m.den - bf) / (m.den_se * m.den_se + bf_se * bf_se), ++dof;
     }
@@ -509,6 +514,7 @@ void check_against_brute_force(int cv_lines, bool lobes = false) {
 TEST(PrefilterScalingEstimator, UnbiasedAgainstBruteForce) { check_against_brute_force(0); }
 TEST(PrefilterScalingEstimator, ControlVariateUnbiasedAgainstBruteForce) { check_against_brute_force(1600); }
 TEST(PrefilterScalingEstimator, LobesFormUnbiasedAgainstBruteForce) { check_against_brute_force(0, true); }
+TEST(PrefilterScalingEstimator, JitteredDirectionsUnbiasedAgainstBruteForce) { check_against_brute_force(0, false, true); }
 
 TEST(PrefilterScalingEstimator, ReportedStandardErrorMatchesTheSpreadOverSeeds) {
     // The median relative standard error of S the estimator reports against the spread of S

@@ -108,7 +108,7 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
     model.manifest["parameters"] = {{"scales", o.scales}, {"M", o.M}, {"N", o.N}, {"lobes", o.lobes},
                                     {"interreflections", o.interreflections}, {"paths_per_bin", o.paths},
                                     {"low_paths_per_bin", o.low_paths}, {"low_nodes", o.low_nodes}, {"cv_lines", o.cv_lines},
-                                    {"target_error", o.target_error},
+                                    {"directions", o.jitter_directions ? "jitter" : "centres"}, {"target_error", o.target_error},
                                     {"max_rounds", o.max_rounds}, {"max_seconds", o.max_seconds}, {"epsilon", o.epsilon}, {"seed", o.seed},
                                     {"ndf_samples_per_cell", o.samples_per_cell},
                                     {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
@@ -173,6 +173,7 @@ ScalingOptions scaling_options(const PipelineOptions &o, uint64_t seed) {
     sopt.low_paths = o.low_paths;
     sopt.low_nodes = o.low_nodes;
     sopt.cv_lines = o.cv_lines;
+    sopt.jitter_directions = o.jitter_directions;
     sopt.epsilon = o.epsilon;
     sopt.target_error = o.target_error;
     sopt.seed = seed;

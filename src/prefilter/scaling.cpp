@@ -123,10 +123,17 @@ struct ScalingEstimator::Task {
                 mix_bits(round_seed ^ 0x5eedULL));
         return r.next_double();
     }
-    /// ωo jittered in its bin; every ωi bin on one shifted copy of the grid (fills `wi`).
+    /// ωo in its bin and every ωi bin on one copy of the grid (fills `wi`): at the bin centres,
+    /// or jittered (ScalingOptions::jitter_directions). The stream advances the same either way.
     void draw_directions(PCG32 &lr, Vec3 &wo) {
-        wo = square_to_hemisphere(Vec2((float(box) + lr.next_float()) / float(N), (float(boy) + lr.next_float()) / float(N)));
-        const float sa = lr.next_float(), sb = lr.next_float();
+        const bool jitter = est.m_opt.jitter_directions;
+        float j[4];
+        for (float &x : j) {
+            const float r = lr.next_float();
+            x = jitter ? r : 0.5f;
+        }
+        wo = square_to_hemisphere(Vec2((float(box) + j[0]) / float(N), (float(boy) + j[1]) / float(N)));
+        const float sa = j[2], sb = j[3];
         for (int b = 0; b < B; ++b)
             wi[size_t(b)] = square_to_hemisphere(Vec2((float(b % N) + sa) / float(N), (float(b / N) + sb) / float(N)));
     }

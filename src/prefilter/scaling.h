@@ -65,6 +65,12 @@
 // are traced again, for every patch; the others keep their sums. Each task's mean divides by its
 // own line count, so unequal counts leave every estimate unbiased.
 //
+// Directions. The renderer reads S by bilinear interpolation between bin CENTRES (table_lookup.cpp),
+// so by default a line's ωo and every ωi are those centres: each entry estimates S at the point
+// the lookup assumes, and the spread of a glossy lobe across a bin (where a jittered ωi falls
+// relative to the lobe) adds no variance. `jitter_directions` keeps the older estimate of the
+// bin's average instead (ωo uniform in its bin, the ωi grid randomly shifted per line).
+//
 // Control variate (cv_lines > 0). Most of the numerator's noise is the first vertex's terms:
 // which micro-normal a line hits and where ωo, ωi fall in their bins (a glossy lobe reaches few
 // bins). Their unshadowed part c = f_base(ωo, ωi; m) at the first vertex (no shadow ray, no
@@ -113,6 +119,10 @@ struct ScalingOptions {
     /// Control variate (see "Control variate" above): cheap lines per (patch, ωo bin) per round
     /// that evaluate the first vertex's terms without shadow rays (0: no control variate).
     int cv_lines = 0;
+    /// Where a line's directions sit in their bins (see "Directions" above): false = at the bin
+    /// centres, the points S's lookup interpolates between (table_lookup.cpp); true = jittered,
+    /// ωo uniformly in its bin and all ωi bins on one random shift of the grid per line.
+    bool jitter_directions = false;
     /// Called with the fraction of (patch, ωo bin) tasks of the current round done (any thread,
     /// serialised by the caller's responsibility: it is called under a mutex here).
     std::function<void(double)> progress;
