@@ -23,7 +23,10 @@ struct VmfTables {
     static constexpr int kT = 129, kK = 65;
     static constexpr double kRowScale = 2.0;
     std::vector<float> C, H;  ///< row-major [row * kT + column]
-    VmfTables() : C(size_t(kT) * kK), H(size_t(kT) * kK) {
+    /// ∫ from −1 to column i of row r's piecewise-linear C (trapezoids), row-major like C: the
+    /// CDF that samples t exactly from the tabulated C (sample_t).
+    std::vector<double> Ccum;
+    VmfTables() : C(size_t(kT) * kK), H(size_t(kT) * kK), Ccum(size_t(kT) * kK) {
         for (int r = 0; r < kK; ++r)
             for (int i = 0; i < kT; ++i) {
                 const double t = std::clamp(-1.0 + 2.0 * i / (kT - 1), -1.0, 1.0);
@@ -38,10 +41,48 @@ struct VmfTables {
                 C[k] = float(vmf_projected_area(mu, kappa));
                 H[k] = float(vmf_cap_mass(mu, kappa));
             }
+        const double dt = 2.0 / (kT - 1);
+        for (int r = 0; r < kK; ++r)
+            for (int i = 1; i < kT; ++i) {
+                const size_t k = size_t(r) * kT + size_t(i);
+                Ccum[k] = Ccum[k - 1] + 0.5 * dt * (double(C[k - 1]) + double(C[k]));
+            }
     }
     static float row(double kappa) {
         const double q = std::sqrt(std::max(0.0, kappa)), s = std::isinf(kappa) ? 1.0 : q / (q + kRowScale);
         return float(std::clamp(s, 0.0, 1.0) * (kK - 1));
+    }
+    /// ∫ C(t, row) dt over [−1, 1] of the bilinear table (so the sphere integral of C(μ·ω) is 2π
+    /// times it; π for the exact C).
+    double mass(float row) const {
+        const int r = std::min(int(row), kK - 2);
+        const double fy = double(row) - r;
+        return (1.0 - fy) * Ccum[size_t(r) * kT + kT - 1] + fy * Ccum[size_t(r + 1) * kT + kT - 1];
+    }
+    /// t = μ·ω with density C(t, row) / mass(row) on [−1, 1], exactly as the bilinear table
+    /// gives it (lookup): the table's row blend is a mixture of its two rows (one chosen with
+    /// u, then u rescaled to the chosen row's share), each row piecewise linear in t (the column
+    /// from its CDF, the position in the column by inverting the linear density's quadratic CDF).
+    float sample_t(float row, float u) const {
+        const int r0 = std::min(int(row), kK - 2);
+        const double fy = double(row) - r0;
+        const double w0 = (1.0 - fy) * Ccum[size_t(r0) * kT + kT - 1], w1 = fy * Ccum[size_t(r0 + 1) * kT + kT - 1];
+        const double p0 = w0 / (w0 + w1);
+        double v = std::clamp(double(u), 0.0, 1.0);
+        const int r = v < p0 ? r0 : r0 + 1;
+        v = v < p0 ? v / p0 : (v - p0) / (1.0 - p0);
+        const double *cum = &Ccum[size_t(r) * kT];
+        const float *c = &C[size_t(r) * kT];
+        const double target = std::min(v, 1.0 - 1e-12) * cum[kT - 1];
+        // The first column whose end is past the target: a column of zero mass is never chosen.
+        const int i = int(std::upper_bound(cum + 1, cum + kT, target) - cum) - 1;
+        const int col = std::clamp(i, 0, kT - 2);
+        const double dt = 2.0 / (kT - 1), a = c[col], b = c[col + 1], m = (target - cum[col]) / dt;
+        // Density a + (b − a) x on x ∈ [0, 1] (times dt): a x + (b − a) x² / 2 = m.
+        double x;
+        if (std::abs(b - a) < 1e-9 * std::max(a, b)) x = a > 0.0 ? m / a : 0.5;
+        else x = (std::sqrt(std::max(0.0, a * a + 2.0 * (b - a) * m)) - a) / (b - a);
+        return float(std::clamp(-1.0 + (double(col) + std::clamp(x, 0.0, 1.0)) * dt, -1.0, 1.0));
     }
     static float lookup(const std::vector<float> &tab, float t, float row) {
         const float x = std::clamp((t + 1.f) * 0.5f * (kT - 1), 0.f, float(kT - 1));
@@ -219,9 +260,7 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             l.alpha = float(a);
             l.inv_a2 = float(1.0 / (a * a));
             l.d_norm = float(m_base.type == MicrofacetType::GGX ? a * a / kPiD : 1.0 / (kPiD * a * a));
-            const double ks = vmf::convolve_kappa(kappa, kCosineKappa);
-            l.kappa_s = float(ks);
-            l.vmf_norm = float(ks > 1e-8 ? ks / (2.0 * kPiD * -std::expm1(-2.0 * ks)) : 1.0 / (4.0 * kPiD));
+            l.inv_mass = float(1.0 / (2.0 * kPiD * vmf_tables().mass(l.krow)));
             m_lobes.push_back(l);
         }
     }
@@ -316,8 +355,9 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, 
         if (!(v > 0.f)) continue;
         const float ti = dot(l->mu, wi);
         ptot += v;
-        sum += v * VmfTables::lookup(tab.C, ti, l->krow);
-        psum += v * l->vmf_norm * std::exp(l->kappa_s * (ti - 1.f));
+        const float c = VmfTables::lookup(tab.C, ti, l->krow);
+        sum += v * c;
+        psum += v * c * l->inv_mass;
     }
     if (pdf) *pdf = ptot > 0.f ? psum / ptot : 0.f;
     if (!(sum > 0.f)) return Spectrum(0.f);
@@ -378,7 +418,12 @@ bool SvLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe,
         wi = normalize(m * (2.f * d) - wo);
         if (!(dot(l->mu, wi) > 0.f)) return false;  // outside the lobe's hemisphere (pdf counts it out)
     } else {
-        wi = vmf::sample(l->mu, double(l->kappa_s), u);
+        // t = μ·ωi with density C(t, κ_j) / mass, the azimuth about μ uniform: the density of
+        // ωi is the lobe's pdf term C(μ·ωi, κ_j) · inv_mass exactly (the vMF-convolved clamped
+        // cosine: a normal drawn from the lobe, then a cosine-weighted direction about it).
+        const float t = vmf_tables().sample_t(l->krow, u.x);
+        const float st = std::sqrt(std::max(0.f, 1.f - t * t)), phi = 2.f * kPiF * u.y;
+        wi = normalize(Frame(l->mu).to_world(Vec3(st * std::cos(phi), st * std::sin(phi), t)));
     }
     if (!(wi.z > 0.f)) return false;
     float p = 0.f;

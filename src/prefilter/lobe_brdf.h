@@ -48,9 +48,13 @@
 // microfacet lobes, min(1, H(μ_j·ωo, κ_j) / H(μ_j,z, κ_j)) for Lambertian ones), then
 //   microfacet: the FULL NDF D_α'(m; μ_j)(m·μ_j) in the frame of μ_j (closed form, no inverted
 //     CDF), ωi = reflect(ωo, m); density D (m·μ_j) / (4 ωo·m) where μ_j·ωi > 0;
-//   Lambertian: a vMF around μ_j with κ'_j = κ_j κ_c / (κ_j + κ_c), κ_c = kCosineKappa (the clamped
-//     cosine's vMF stand-in, convolved with the lobe; exact sampling and density, support on the
-//     whole sphere, so every direction with eval > 0 can be drawn).
+//   Lambertian: exactly the lobe's own C: t = μ_j·ωi drawn with density C(t, κ_j) / ∫C from the
+//     bilinear C table itself (a mixture of its two rows, each piecewise linear in t: a column
+//     from the row's CDF, then the inverted quadratic within it), the azimuth about μ_j uniform;
+//     density C(μ_j·ωi, κ_j) / (2π ∫C dt) (≈ C / π, the density of "a normal from the lobe,
+//     then a cosine-weighted direction about it"). With one lobe, weight = eval / pdf is then
+//     constant in ωi; the vMF stand-in of the clamped cosine used before (κ_c = 2.133) left a
+//     relative spread of 0.1–0.39 in the weight. Support: wherever C > 0, i.e. wherever eval > 0.
 // Directions below the macro horizon fail (sample returns false). pdf is the exact density of
 // that procedure (the mixture over j), so the χ² test holds and weight = eval / pdf exactly.
 //
@@ -72,10 +76,6 @@ namespace meso::prefilter {
 
 /// Where widening stops (κ → 0): GGX with α = 1 is the uniform NDF D = 1/π.
 constexpr double kMaxWidenedAlpha = 1.0;
-/// κ of the vMF that stands in for a clamped cosine when sampling Lambertian lobes (Wang et al.
-/// 2009's fit, cos⁺ ≈ 2.133 · vMF-shaped lobe).
-constexpr double kCosineKappa = 2.133;
-
 /// α' = sqrt(α² + 2/κ) (see the header), at most max(α, kMaxWidenedAlpha); κ = 0 and κ = ∞ allowed.
 double widened_alpha(double alpha, double kappa);
 /// C(t, κ) = ∫ γ(ω; μ, κ) max(0, ω·n) dω for t = μ·n ∈ [−1, 1], κ ∈ [0, ∞]: bilinear in a table
@@ -118,8 +118,7 @@ public:
         float inv_a2 = 0.f;   ///< 1 / α'²
         float d_norm = 0.f;   ///< Beckmann 1 / (π α'²); GGX α'² / π
         float krow = 0.f;     ///< κ_j as a row coordinate of the C and H tables (Lambertian)
-        float kappa_s = 0.f;  ///< κ'_j of the Lambertian sampler
-        float vmf_norm = 0.f; ///< κ'_j / (2π (1 − e^{−2κ'_j})): the sampler's density at μ_j
+        float inv_mass = 0.f; ///< 1 / ∫ C(μ_j·ω, κ_j) dω of the tabulated C (≈ 1/π): the Lambertian sampler's normalisation
         float hz = 0.f;       ///< H(μ_j,z, κ_j) (> 0)
     };
 
