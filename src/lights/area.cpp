@@ -110,8 +110,14 @@ public:
         Vec3 d = p - ctx.p;
         d2 = length_squared(d);
         if (!(d2 > 0.f)) return false;
-        out.dist = std::sqrt(d2);
-        out.wi = d / out.dist;
+        if (d2 >= FLT_MIN && d2 <= 1e38f) {  // one reciprocal square root (float_trig.h)
+            const float inv = rsqrt(d2);
+            out.dist = d2 * inv;
+            out.wi = d * inv;
+        } else {
+            out.dist = std::sqrt(d2);
+            out.wi = d / out.dist;
+        }
         return true;
     }
 
@@ -126,7 +132,8 @@ public:
         if (plan.kind == RectPlan::Float || plan.kind == RectPlan::Double || plan.kind == RectPlan::Area) {
             // A rectangle: one direction uniform in its solid angle, or one point uniform on it.
             if (plan.kind == RectPlan::Float) {
-                if (!plan.f->sample(u, p)) return false;
+                // wi and the distance come from the sampler's frame (no towards()).
+                if (!plan.f->sample(u, p, nullptr, &out.wi, &out.dist)) return false;
                 pdf = 1.f / plan.f->S;
             } else if (plan.kind == RectPlan::Double) {
                 if (!plan.d->sample(u, p)) return false;
@@ -144,7 +151,7 @@ public:
                 n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
                 uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
             }
-            if (!towards(ctx, p, out, d2)) return false;
+            if (plan.kind != RectPlan::Float && !towards(ctx, p, out, d2)) return false;
             if (plan.kind == RectPlan::Area) pdf = rect_area_density(out.wi, d2);
         } else if (m_mesh) {
             float pmf, ux;
@@ -362,7 +369,7 @@ private:
             plan.kind = RectPlan::Area;
             return plan;
         }
-        const sphrect::FloatSphericalRectangle &f = plan.f.emplace(p, m_rect);
+        const sphrect::FloatSphericalRectangle &f = plan.f.emplace(p, m_rect, -a, -b, -zq);  // corner - p in the frame
         if (f.valid && f.S >= MinFloatSolidAngle && f.S <= MaxSphericalSampleArea) {
             plan.kind = RectPlan::Float;
         } else if (f.valid && f.S < MinFloatSolidAngle) {
