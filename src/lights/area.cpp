@@ -58,7 +58,9 @@
 #include <fmt/format.h>
 #include <algorithm>
 #include <nlohmann/json.hpp>
-#include <optional>
+#include <new>
+#include <type_traits>
+#include <utility>
 #include <vector>
 #include "core/error.h"
 #include "geometry/shape.h"
@@ -91,6 +93,20 @@ constexpr float MinFloatSolidAngle = 1e-2f;  // sr
 /// flops and several square roots). Compared as d_max^2 <= RhoMax^(2/3) d_min^2.
 constexpr float RhoMax23 = 1.3103707f;  // 1.5^(2/3)
 inline bool area_sampling_suffices(float dmin2, float dmax2) { return dmax2 <= RhoMax23 * dmin2; }
+
+/// Storage for a T built in place only where needed, with nothing written before: GCC 12 zeroes
+/// a std::optional's whole payload when it is constructed empty (for RectPlan's two, 304 bytes
+/// per light sample and pdf). The owner knows from its own state whether it was built. T must be
+/// trivially destructible.
+template <class T>
+struct InPlace {
+    static_assert(std::is_trivially_destructible_v<T>);
+    alignas(T) unsigned char bytes[sizeof(T)];
+    InPlace() {}  // NOLINT: leaves bytes uninitialised on purpose
+    template <class... A>
+    const T &emplace(A &&...a) { return *new (bytes) T(std::forward<A>(a)...); }
+    const T *operator->() const { return std::launder(reinterpret_cast<const T *>(bytes)); }
+};
 
 class AreaLight final : public Light {
 public:
@@ -349,8 +365,8 @@ private:
     /// "area" mode) go to the triangles, which decide per triangle.
     struct RectPlan {
         enum Kind { Nothing, Triangles, Area, Float, Double } kind = Triangles;
-        std::optional<sphrect::FloatSphericalRectangle> f;  ///< not built (nor zeroed) for Area and Nothing
-        std::optional<sphrect::SphericalRectangle> d;  ///< built only below MinFloatSolidAngle (rare)
+        InPlace<sphrect::FloatSphericalRectangle> f;  ///< built for Float and Double only
+        InPlace<sphrect::SphericalRectangle> d;       ///< built only below MinFloatSolidAngle (rare)
     };
     RectPlan rect_plan(Vec3 p) const {
         RectPlan plan;
