@@ -136,7 +136,7 @@ TEST(FloatTrig, RsqrtWithinStatedError) {
 
 // The float sampler maps u to the same point as the double one (Urena et al.'s formulas in
 // double precision, SphericalRectangle::sample), and its wi and dist are those of p - o: over
-// random rectangles and points at distances over three decades of scale, wherever area.cpp uses
+// random rectangles and points at scales from 1e-12 to 1e12, wherever area.cpp uses
 // it (S in [1e-2, 6.22] sr), u in [1e-3, 1 - 1e-3]^2. Points at heights below 5% of the size
 // (rectangle and distance) are left out: towards grazing the map's derivative grows without
 // bound and any float version, the one before this sampler included, is off by up to 0.5 of
@@ -147,7 +147,7 @@ TEST(FloatSphericalRectangle, SampleMatchesTheDoubleMap) {
     int used = 0;
     double worst_p = 0, worst_wi = 0, worst_dist = 0;
     for (int i = 0; i < 40000; ++i) {
-        const float scale = std::ldexp(1.f, int(rng.next_float() * 20) - 10);
+        const float scale = std::ldexp(1.f, int(rng.next_float() * 80) - 40);  // 1e-12 .. 1e12
         const Vec3 ex = Vec3(rng.next_float() + 0.01f, 0, 0) * scale, ey = Vec3(0, rng.next_float() + 0.01f, 0) * scale;
         const float dist = std::ldexp(1.f, int(rng.next_float() * 8) - 4) * scale;
         const Vec3 o((rng.next_float() - 0.5f) * 4 * dist, (rng.next_float() - 0.5f) * 4 * dist,
