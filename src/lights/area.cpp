@@ -178,7 +178,7 @@ public:
             const TriPlan tp = tri_plan(ctx.p, t, p0, p1, p2);
             float b[3];
             if (tp.kind == TriPlan::Float) {
-                if (!tp.f.sample(p0, p1, p2, Vec2(ux, u.y), b)) return false;
+                if (!tp.f->sample(p0, p1, p2, Vec2(ux, u.y), b)) return false;
             } else if (tp.kind == TriPlan::Double) {
                 double bd[3];
                 if (!sphtri::sample(ctx.p, p0, p1, p2, Vec2(ux, u.y), bd)) return false;
@@ -283,7 +283,7 @@ private:
     /// MinFloatSolidAngle, in double below. A function of p alone: pdf() repeats sample()'s choice.
     struct TriPlan {
         enum Kind { Area, Float, Double } kind = Area;
-        sphtri::FloatSphericalTriangle f;
+        InPlace<sphtri::FloatSphericalTriangle> f;  ///< built unless the plan is area sampling
         double omega = 0;  ///< Double: the solid angle
     };
     TriPlan tri_plan(Vec3 p, size_t t, Vec3 p0, Vec3 p1, Vec3 p2) const {
@@ -295,12 +295,12 @@ private:
         const float dmin = std::max(h, dc);
         const float dmax2 = std::max({length_squared(p0 - p), length_squared(p1 - p), length_squared(p2 - p)});
         if (area_sampling_suffices(dmin * dmin, dmax2)) return plan;
-        plan.f = sphtri::FloatSphericalTriangle(p, p0, p1, p2);
-        if (plan.f.valid && plan.f.S >= MinFloatSolidAngle && plan.f.S <= MaxSphericalSampleArea) {
+        const sphtri::FloatSphericalTriangle &f = plan.f.emplace(p, p0, p1, p2);
+        if (f.valid && f.S >= MinFloatSolidAngle && f.S <= MaxSphericalSampleArea) {
             plan.kind = TriPlan::Float;
             return plan;
         }
-        if (plan.f.valid && plan.f.S > MaxSphericalSampleArea && plan.f.S < 6.27f) return plan;  // nearly a hemisphere
+        if (f.valid && f.S > MaxSphericalSampleArea && f.S < 6.27f) return plan;  // nearly a hemisphere
         plan.omega = sphtri::solid_angle(p, p0, p1, p2);
         if (plan.omega >= MinSphericalSampleArea && plan.omega <= MaxSphericalSampleArea) plan.kind = TriPlan::Double;
         return plan;
@@ -308,7 +308,7 @@ private:
     /// Solid-angle density of the light point at distance^2 d2 along wi on triangle t (chosen
     /// with probability pmf, sampled as `plan` says).
     float density(size_t t, const TriPlan &plan, Vec3 n, Vec3 wi, float d2, float pmf) const {
-        if (plan.kind == TriPlan::Float) return pmf / plan.f.S;
+        if (plan.kind == TriPlan::Float) return pmf / plan.f->S;
         if (plan.kind == TriPlan::Double) return float(double(pmf) / plan.omega);
         float cos_l = absdot(n, wi);
         float area_t = m_tri_area[t];
