@@ -1,4 +1,4 @@
-// `perspective` camera: pinhole or thin lens, with ray differentials for every ray.
+// `perspective` camera: pinhole or thin lens, with ray differentials for every ray that asks.
 //   origin, target, up     vec3   camera placement (look-at)  [0,0,0], [0,0,-1], [0,1,0]
 //                                 (origin and target coordinates within ±1e8)
 //   fov                    float  field of view in degrees, (0, 180)   40
@@ -81,6 +81,14 @@ public:
         make_ray(s.film + Vec2(1, 0), s.lens, ray.rx_o, ray.rx_d);
         make_ray(s.film + Vec2(0, 1), s.lens, ray.ry_o, ray.ry_d);
         ray.has_differentials = true;
+        return 1.f;
+    }
+
+    float generate_ray_no_differentials(const CameraSample &s, RayDifferential &ray) const override {
+        make_ray(s.film, s.lens, ray.o, ray.d);
+        ray.tmin = 0.f;
+        ray.tmax = Infinity;
+        ray.has_differentials = false;
         return 1.f;
     }
 

@@ -56,6 +56,11 @@ public:
     std::string to_string() const override;
     /// Prefilters the infinite lights when leadr_env_quadrature is on.
     void preprocess(const Scene &scene) override;
+    /// Camera differentials where a material reads footprints at every hit (and
+    /// "differentials" is on), or where an LoD shape picks its level from the camera ray's.
+    bool camera_differentials(const Scene &scene) const override {
+        return m_use_differentials || scene.has_lod_shapes;
+    }
 
 private:
     /// One path. `level` < 0: the LoD level is chosen from the camera ray's first hit on an
@@ -88,9 +93,7 @@ private:
 void PathIntegrator::preprocess(const Scene &scene) {
     // Differentials only when a material reads the footprint (LoD selection at the camera hit
     // computes its own).
-    m_use_differentials = false;
-    for (const auto &shape : scene.shapes)
-        if (m_differentials && shape->material && shape->material->uses_footprint()) m_use_differentials = true;
+    m_use_differentials = m_differentials && scene.materials_read_footprints;
     m_envs.clear();
     if (m_leadr_env_quadrature)
         for (const Light *env : scene.infinite_lights) m_envs.push_back(PrefilteredEnvironment::from_light(*env));

@@ -3,6 +3,7 @@
 // differences of actually traced neighbouring rays, the camera-based approximation after
 // rough scattering, and finiteness in grazing / degenerate cases.
 #include <gtest/gtest.h>
+#include <mutex>
 #include <vector>
 #include <fmt/format.h>
 #include "geometry/interaction.h"
@@ -93,6 +94,97 @@ TEST(DifferentialsCamera, PlaneFootprintMatchesAnalytic) {
         EXPECT_NEAR(std::abs(si.dudx), pix / 20, 0.01 * pix / 20);
         EXPECT_NEAR(std::abs(si.dvdy), pix / 20 / std::cos(theta * Deg), 0.01 * pix / 20 / std::cos(theta * Deg));
         EXPECT_LT(std::abs(si.dvdx) + std::abs(si.dudy), 1e-3 * pix / 20);
+    }
+}
+
+namespace {
+
+/// Wraps a scene's integrator (its decisions included) and records the camera rays the
+/// render loop hands it: how many carry differentials, whether those are a one-pixel step,
+/// and the footprint scale.
+class CameraRayProbe final : public Integrator {
+public:
+    explicit CameraRayProbe(std::shared_ptr<Integrator> inner) : m_inner(std::move(inner)) {}
+    Spectrum li(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats) const override {
+        std::lock_guard<std::mutex> lock(m_mutex);
+        if (ray.has_differentials) {
+            ++with;
+            // Pinhole: the same origin, directions one pixel apart (2 tan(fov/2) / W at the
+            // centre, down to cos^2 of the corner angle there), times the footprint scale.
+            const float step = length(ray.rx_d - ray.d) / ray.footprint_scale;
+            one_pixel_steps += length(ray.rx_o - ray.o) == 0.f && length(ray.ry_o - ray.o) == 0.f && step > 0.8f * pixel_angle &&
+                               step < 1.01f * pixel_angle && length(ray.ry_d - ray.d) > 0.f;
+        } else {
+            ++without;
+        }
+        scales.push_back(ray.footprint_scale);
+        return m_inner->li(scene, ray, sampler, stats);
+    }
+    void preprocess(const Scene &scene) override { m_inner->preprocess(scene); }
+    bool camera_differentials(const Scene &scene) const override { return m_inner->camera_differentials(scene); }
+    std::string to_string() const override { return "probe of " + m_inner->to_string(); }
+
+    float pixel_angle = 0.f;
+    mutable int with = 0, without = 0, one_pixel_steps = 0;
+    mutable std::vector<float> scales;
+
+private:
+    std::shared_ptr<Integrator> m_inner;
+    mutable std::mutex m_mutex;
+};
+
+/// Renders a 16 x 16 view of a rectangle (with `shape_extra` in its JSON: a material, an LoD
+/// chain) at 4 spp through a CameraRayProbe.
+std::shared_ptr<CameraRayProbe> probe_camera_rays(const std::string &integrator, const std::string &shape_extra) {
+    auto s = load_json_scene("diff_need.json", fmt::format(R"({{ {},
+      "integrator": {},
+      "shapes": [{{"type": "rectangle", "to_world": {{"scale": 3}} {}}}],
+      "lights": [{{"type": "constant", "radiance": 1}}]
+    }})", camera_json(Vec3(0, 0, 4), Vec3(0, 0, 0), Vec3(0, 1, 0), 40, 16, 16), integrator, shape_extra));
+    auto probe = std::make_shared<CameraRayProbe>(s->integrator);
+    probe->pixel_angle = 2.f * std::tan(20.f * Deg) / 16.f;
+    s->integrator = probe;
+    RenderResult r = render_scene(*s, 4);
+    EXPECT_EQ(r.nan_count, 0);
+    return probe;
+}
+
+}  // namespace
+
+// Camera rays carry differentials only where something reads a footprint (issue 22: pay only
+// for what the scene uses): a material with a varying texture (at every hit), an LoD shape
+// (its level comes from the camera ray's footprint, even under constant materials), an
+// integrator that reports footprints (aov). Constant materials under `path`, or `path` with
+// "differentials": false and no LoD, get rays without them. Either way the rays keep the
+// per-sample footprint scale max(1/8, 1/sqrt(spp)) = 1/2 that the camera-based approximation
+// after rough scattering reads.
+TEST(DifferentialsCamera, CameraRaysCarryDifferentialsOnlyWhereSomethingReadsThem) {
+    const std::string path = R"({"type": "path", "max_depth": 3})";
+    const std::string textured = R"(, "material": {"type": "diffuse", "reflectance": {"type": "checkerboard"}})";
+    const std::string lod = R"(, "material": {"type": "diffuse", "reflectance": 0.5},
+        "displacement": {"map": {"generator": "fbm", "size": 64}, "scale": 0, "tiling": 4},
+        "lod": {"factors": [1, 4], "same_model": true})";
+    struct Case {
+        const char *what;
+        std::string integrator, shape;
+        bool differentials;
+    };
+    const Case cases[] = {
+        {"constant diffuse", path, R"(, "material": {"type": "diffuse", "reflectance": 0.5})", false},
+        {"constant conductor", path, R"(, "material": {"type": "conductor", "material": "Au", "alpha": 0.2})", false},
+        {"textured diffuse", path, textured, true},
+        {"textured diffuse, differentials off", R"({"type": "path", "differentials": false})", textured, false},
+        {"LoD shape, constant material", path, lod, true},
+        {"LoD shape, differentials off", R"({"type": "path", "differentials": false})", lod, true},
+        {"aov footprint, constant material", R"({"type": "aov", "aov": "footprint"})", "", true},
+    };
+    for (const Case &c : cases) {
+        auto probe = probe_camera_rays(c.integrator, c.shape);
+        const int n = 16 * 16 * 4;
+        EXPECT_EQ(probe->with, c.differentials ? n : 0) << c.what;
+        EXPECT_EQ(probe->without, c.differentials ? 0 : n) << c.what;
+        EXPECT_EQ(probe->one_pixel_steps, probe->with) << c.what;
+        for (float scale : probe->scales) ASSERT_EQ(scale, 0.5f) << c.what;
     }
 }
 

@@ -8,7 +8,7 @@
 namespace meso {
 
 namespace phase_detail {
-thread_local Phase current = Phase::Other;
+__thread Phase current = Phase::Other;
 }
 
 namespace {

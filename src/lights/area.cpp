@@ -58,7 +58,9 @@
 #include <fmt/format.h>
 #include <algorithm>
 #include <nlohmann/json.hpp>
-#include <optional>
+#include <new>
+#include <type_traits>
+#include <utility>
 #include <vector>
 #include "core/error.h"
 #include "geometry/shape.h"
@@ -92,6 +94,20 @@ constexpr float MinFloatSolidAngle = 1e-2f;  // sr
 constexpr float RhoMax23 = 1.3103707f;  // 1.5^(2/3)
 inline bool area_sampling_suffices(float dmin2, float dmax2) { return dmax2 <= RhoMax23 * dmin2; }
 
+/// Storage for a T built in place only where needed, with nothing written before: GCC 12 zeroes
+/// a std::optional's whole payload when it is constructed empty (for RectPlan's two, 304 bytes
+/// per light sample and pdf). The owner knows from its own state whether it was built. T must be
+/// trivially destructible.
+template <class T>
+struct InPlace {
+    static_assert(std::is_trivially_destructible_v<T>);
+    alignas(T) unsigned char bytes[sizeof(T)];
+    InPlace() {}  // NOLINT: leaves bytes uninitialised on purpose
+    template <class... A>
+    const T &emplace(A &&...a) { return *new (bytes) T(std::forward<A>(a)...); }
+    const T *operator->() const { return std::launder(reinterpret_cast<const T *>(bytes)); }
+};
+
 class AreaLight final : public Light {
 public:
     /// `texture` null: the constant radiance L.
@@ -110,8 +126,14 @@ public:
         Vec3 d = p - ctx.p;
         d2 = length_squared(d);
         if (!(d2 > 0.f)) return false;
-        out.dist = std::sqrt(d2);
-        out.wi = d / out.dist;
+        if (d2 >= FLT_MIN && d2 <= 1e38f) {  // one reciprocal square root (float_trig.h)
+            const float inv = rsqrt(d2);
+            out.dist = d2 * inv;
+            out.wi = d * inv;
+        } else {
+            out.dist = std::sqrt(d2);
+            out.wi = d / out.dist;
+        }
         return true;
     }
 
@@ -126,7 +148,8 @@ public:
         if (plan.kind == RectPlan::Float || plan.kind == RectPlan::Double || plan.kind == RectPlan::Area) {
             // A rectangle: one direction uniform in its solid angle, or one point uniform on it.
             if (plan.kind == RectPlan::Float) {
-                if (!plan.f->sample(u, p)) return false;
+                // wi and the distance come from the sampler's frame (no towards()).
+                if (!plan.f->sample(u, p, nullptr, &out.wi, &out.dist)) return false;
                 pdf = 1.f / plan.f->S;
             } else if (plan.kind == RectPlan::Double) {
                 if (!plan.d->sample(u, p)) return false;
@@ -144,7 +167,7 @@ public:
                 n = emission_normal(t, float(b[0]), float(b[1]), float(b[2]));
                 uv = m_shape->uv_at(uint32_t(t), float(b[1]), float(b[2]));
             }
-            if (!towards(ctx, p, out, d2)) return false;
+            if (plan.kind != RectPlan::Float && !towards(ctx, p, out, d2)) return false;
             if (plan.kind == RectPlan::Area) pdf = rect_area_density(out.wi, d2);
         } else if (m_mesh) {
             float pmf, ux;
@@ -155,7 +178,7 @@ public:
             const TriPlan tp = tri_plan(ctx.p, t, p0, p1, p2);
             float b[3];
             if (tp.kind == TriPlan::Float) {
-                if (!tp.f.sample(p0, p1, p2, Vec2(ux, u.y), b)) return false;
+                if (!tp.f->sample(p0, p1, p2, Vec2(ux, u.y), b)) return false;
             } else if (tp.kind == TriPlan::Double) {
                 double bd[3];
                 if (!sphtri::sample(ctx.p, p0, p1, p2, Vec2(ux, u.y), bd)) return false;
@@ -260,7 +283,7 @@ private:
     /// MinFloatSolidAngle, in double below. A function of p alone: pdf() repeats sample()'s choice.
     struct TriPlan {
         enum Kind { Area, Float, Double } kind = Area;
-        sphtri::FloatSphericalTriangle f;
+        InPlace<sphtri::FloatSphericalTriangle> f;  ///< built unless the plan is area sampling
         double omega = 0;  ///< Double: the solid angle
     };
     TriPlan tri_plan(Vec3 p, size_t t, Vec3 p0, Vec3 p1, Vec3 p2) const {
@@ -272,12 +295,12 @@ private:
         const float dmin = std::max(h, dc);
         const float dmax2 = std::max({length_squared(p0 - p), length_squared(p1 - p), length_squared(p2 - p)});
         if (area_sampling_suffices(dmin * dmin, dmax2)) return plan;
-        plan.f = sphtri::FloatSphericalTriangle(p, p0, p1, p2);
-        if (plan.f.valid && plan.f.S >= MinFloatSolidAngle && plan.f.S <= MaxSphericalSampleArea) {
+        const sphtri::FloatSphericalTriangle &f = plan.f.emplace(p, p0, p1, p2);
+        if (f.valid && f.S >= MinFloatSolidAngle && f.S <= MaxSphericalSampleArea) {
             plan.kind = TriPlan::Float;
             return plan;
         }
-        if (plan.f.valid && plan.f.S > MaxSphericalSampleArea && plan.f.S < 6.27f) return plan;  // nearly a hemisphere
+        if (f.valid && f.S > MaxSphericalSampleArea && f.S < 6.27f) return plan;  // nearly a hemisphere
         plan.omega = sphtri::solid_angle(p, p0, p1, p2);
         if (plan.omega >= MinSphericalSampleArea && plan.omega <= MaxSphericalSampleArea) plan.kind = TriPlan::Double;
         return plan;
@@ -285,7 +308,7 @@ private:
     /// Solid-angle density of the light point at distance^2 d2 along wi on triangle t (chosen
     /// with probability pmf, sampled as `plan` says).
     float density(size_t t, const TriPlan &plan, Vec3 n, Vec3 wi, float d2, float pmf) const {
-        if (plan.kind == TriPlan::Float) return pmf / plan.f.S;
+        if (plan.kind == TriPlan::Float) return pmf / plan.f->S;
         if (plan.kind == TriPlan::Double) return float(double(pmf) / plan.omega);
         float cos_l = absdot(n, wi);
         float area_t = m_tri_area[t];
@@ -342,8 +365,8 @@ private:
     /// "area" mode) go to the triangles, which decide per triangle.
     struct RectPlan {
         enum Kind { Nothing, Triangles, Area, Float, Double } kind = Triangles;
-        std::optional<sphrect::FloatSphericalRectangle> f;  ///< not built (nor zeroed) for Area and Nothing
-        std::optional<sphrect::SphericalRectangle> d;  ///< built only below MinFloatSolidAngle (rare)
+        InPlace<sphrect::FloatSphericalRectangle> f;  ///< built for Float and Double only
+        InPlace<sphrect::SphericalRectangle> d;       ///< built only below MinFloatSolidAngle (rare)
     };
     RectPlan rect_plan(Vec3 p) const {
         RectPlan plan;
@@ -362,7 +385,7 @@ private:
             plan.kind = RectPlan::Area;
             return plan;
         }
-        const sphrect::FloatSphericalRectangle &f = plan.f.emplace(p, m_rect);
+        const sphrect::FloatSphericalRectangle &f = plan.f.emplace(p, m_rect, -a, -b, -zq);  // corner - p in the frame
         if (f.valid && f.S >= MinFloatSolidAngle && f.S <= MaxSphericalSampleArea) {
             plan.kind = RectPlan::Float;
         } else if (f.valid && f.S < MinFloatSolidAngle) {

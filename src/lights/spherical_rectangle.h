@@ -107,30 +107,37 @@ struct RectFrame {
 /// conj(e^{i g2} e^{i g3}), and e^{i (u S + k)} = e^{i u S} e^{i k} (one sincos_0_2pi).
 /// The absolute error of S is a few float epsilons (tests: FloatSphericalRectangle.*), so
 /// callers use it only above MinFloatSolidAngle and take the double version below.
+///
+/// Everything is computed in the frame scaled by 1 / m, m the largest of |x0|, |x1|, |y0|, |y1|,
+/// h (the angles do not depend on the scale): no square below underflows or overflows at any
+/// distance. sample() inverts the parametrisation with five reciprocal square roots in its
+/// dependent chain (rsqrt) instead of eleven square roots and divisions (see there).
 struct FloatSphericalRectangle {
     Vec3 o, x, y, z;  ///< reference point and the frame (z towards o)
     float x0 = 0, x1 = 0, y0 = 0, y1 = 0, h = 0;
     float S = 0;
-    float b0 = 0, b1 = 0, sh2_ = 0;  ///< y0, y1 and h^2 in the scaled frame (b0, b1 made in sample())
-    float ek_c = 1, ek_s = 0;        ///< e^{i k} up to a positive factor
+    float m = 0;                                     ///< the scale: a length is m times its scaled value
+    float sx0 = 0, sx1 = 0, sy0 = 0, sy1 = 0, sh = 0;  ///< x0 .. h over m
+    float ek_c = 1, ek_s = 0;                        ///< e^{i k} up to a positive factor
     bool valid = false;
 
     FloatSphericalRectangle() = default;
-    FloatSphericalRectangle(Vec3 o_, const RectFrame &f) : o(o_), x(f.x), y(f.y), z(f.z) {
-        const Vec3 d = f.s - o;
-        x0 = dot(d, x);
-        y0 = dot(d, y);
-        float z0 = dot(d, z);
-        if (z0 > 0.f) z = -z;  // the rectangle on the other side: flip z
-        h = std::abs(z0);
+    FloatSphericalRectangle(Vec3 o_, const RectFrame &f)
+        : FloatSphericalRectangle(o_, f, dot(f.s - o_, f.x), dot(f.s - o_, f.y), dot(f.s - o_, f.z)) {}
+    /// The same, given the corner's coordinates (cx, cy, cz) = (f.s - o) in the frame (x, y, z).
+    FloatSphericalRectangle(Vec3 o_, const RectFrame &f, float cx, float cy, float cz)
+        : o(o_), x(f.x), y(f.y), z(f.z), x0(cx), y0(cy) {
+        if (cz > 0.f) z = -z;  // the rectangle on the other side: flip z
+        h = std::abs(cz);
         if (!(h > 0.f) || !(f.lx > 0.f) || !(f.ly > 0.f)) return;
         x1 = x0 + f.lx;
         y1 = y0 + f.ly;
-        // The angles do not depend on the scale: coordinates over the largest one keep the
-        // products below (i.e. e^{i g} of magnitude at most 3, their product at most 81) far
-        // from float overflow and underflow at any distance.
-        const float inv = 1.f / std::max(std::max(std::max(std::abs(x0), std::abs(x1)), std::max(std::abs(y0), std::abs(y1))), h);
-        const float sx0 = x0 * inv, sx1 = x1 * inv, sy0 = y0 * inv, sy1 = y1 * inv, sh = h * inv, sh2 = sh * sh;
+        // Coordinates over the largest one keep the products below (i.e. e^{i g} of magnitude
+        // at most 3, their product at most 81) far from float overflow and underflow.
+        m = std::max(std::max(std::max(std::abs(x0), std::abs(x1)), std::max(std::abs(y0), std::abs(y1))), h);
+        const float inv = 1.f / m;
+        sx0 = x0 * inv, sx1 = x1 * inv, sy0 = y0 * inv, sy1 = y1 * inv, sh = h * inv;
+        const float sh2 = sh * sh;
         const float r00 = std::sqrt(sx0 * sx0 + sy0 * sy0 + sh2), r10 = std::sqrt(sx1 * sx1 + sy0 * sy0 + sh2);
         const float r01 = std::sqrt(sx0 * sx0 + sy1 * sy1 + sh2), r11 = std::sqrt(sx1 * sx1 + sy1 * sy1 + sh2);
         // Products of the unnormalised e^{i g}: (a, b) (c, d) = (ac - bd, ad + bc).
@@ -141,38 +148,50 @@ struct FloatSphericalRectangle {
         const float pr = p01r * p23r - p01i * p23i, pi = p01r * p23i + p01i * p23r;
         S = atan2_approx(pi, pr);
         if (S < 0.f) S += 2.f * Pi;
-        // What only sample() needs (pdf() reads S alone) is finished there.
-        ek_c = p23r, ek_s = -p23i;
-        b0 = sy0, b1 = sy1, sh2_ = sh2;
+        ek_c = p23r, ek_s = -p23i;  // what only sample() needs (pdf() reads S alone) is finished there
         valid = std::isfinite(S) && S > 0.f && std::isfinite(p23r) && std::isfinite(p23i);
     }
 
     /// The point of the rectangle in the direction sampled by u (density 1 / S in solid angle),
     /// and its coordinates (a, b) in [0, 1]^2 along the edges.
     bool sample(Vec2 u, Vec3 &p, Vec2 &ab) const { return sample(u, p, &ab); }
-    /// The same; `ab` only where non-null (two divisions less).
-    bool sample(Vec2 u, Vec3 &p, Vec2 *ab = nullptr) const {
+    /// The same; `ab`, the unit direction `wi` from o to p and the distance `dist` from o to p
+    /// only where non-null (wi and dist from the frame coordinates: no p - o cancellation).
+    ///
+    /// Urena et al.'s inversion: with b0 = -y0 / sqrt(h^2 + y0^2), b1 = y1 / sqrt(h^2 + y1^2),
+    /// (ca, sa) = e^{i (u S + k)} and n = ca b0 - b1, fu = n / sa, cu = sign(fu) / sqrt(fu^2 +
+    /// b0^2) and xu = h cu / sqrt(1 - cu^2). As 1 - b0^2 = h^2 / (h^2 + y0^2), that is
+    ///     xu = h sign(n) sa / sqrt(n^2 - sa^2 h^2 / (h^2 + y0^2)),
+    /// one reciprocal square root; then h0, h1 = y / sqrt(xu^2 + h^2 + y^2) at y0, y1, hv their
+    /// mix by u.y, yv = hv sqrt(xu^2 + h^2) / sqrt(1 - hv^2), and wi = (xu, yv, -h) / its length.
+    bool sample(Vec2 u, Vec3 &p, Vec2 *ab = nullptr, Vec3 *wi = nullptr, float *dist = nullptr) const {
         if (!valid) return false;
-        // e^{i k} = conj(e^{i g2} e^{i g3}) normalised; b0, b1 from the scaled y0, y1.
-        const float inv23 = 1.f / std::sqrt(ek_c * ek_c + ek_s * ek_s);
-        const float kc = ek_c * inv23, ks = ek_s * inv23;
-        const float b0 = -this->b0 / std::sqrt(sh2_ + this->b0 * this->b0), b1 = this->b1 / std::sqrt(sh2_ + this->b1 * this->b1);
-        float su, cu_;
-        sincos_0_2pi(u.x * S, su, cu_);
-        const float ca = cu_ * kc - su * ks, sa = su * kc + cu_ * ks;  // e^{i (u S + k)}
+        // Independent of each other and of the sincos: b0, b1 and e^{i k} normalised.
+        const float sh2 = sh * sh, r0 = rsqrt(sh2 + sy0 * sy0), r1 = rsqrt(sh2 + sy1 * sy1);
+        const float rk = rsqrt(ek_c * ek_c + ek_s * ek_s), kc = ek_c * rk, ks = ek_s * rk;
+        const float b0 = -sy0 * r0, b1 = sy1 * r1;
+        float su, cu;
+        sincos_0_2pi(u.x * S, su, cu);
+        const float ca = cu * kc - su * ks, sa = su * kc + cu * ks;  // e^{i (u S + k)}
         if (!(std::abs(sa) > 0.f)) return false;
-        const float fu = (ca * b0 - b1) / sa;
-        float cu = std::copysign(1.f / std::sqrt(fu * fu + b0 * b0), fu);
-        cu = std::clamp(cu, -OneMinusEpsilon, OneMinusEpsilon);
-        float xu = cu * h / std::sqrt(std::max(0.f, 1.f - cu * cu));  // -cu z0 / sqrt(1 - cu^2)
-        xu = std::clamp(std::isfinite(xu) ? xu : x0, x0, x1);
-        const float dd2 = xu * xu + h * h;
-        const float h0 = y0 / std::sqrt(dd2 + y0 * y0), h1 = y1 / std::sqrt(dd2 + y1 * y1);
+        const float n = ca * b0 - b1, sgn_sa = n < 0.f ? -sa : sa;
+        const float q = n * n - sa * sa * (sh2 * r0 * r0);  // (fu^2 - (1 - b0^2)) sa^2
+        // q <= 0: |cu| >= 1 by rounding, xu at the side of sign(fu).
+        float xu = q > 0.f ? sh * sgn_sa * rsqrt(q) : (sgn_sa > 0.f ? sx1 : sx0);
+        xu = std::clamp(std::isfinite(xu) ? xu : sx0, sx0, sx1);
+        const float dd2 = xu * xu + sh2, dd = std::sqrt(dd2);
+        const float h0 = sy0 * rsqrt(dd2 + sy0 * sy0), h1 = sy1 * rsqrt(dd2 + sy1 * sy1);
         const float hv = h0 + u.y * (h1 - h0), hv2 = hv * hv;
-        float yv = hv2 < OneMinusEpsilon ? hv * std::sqrt(dd2 / (1.f - hv2)) : (hv > 0.f ? y1 : y0);
-        yv = std::clamp(yv, y0, y1);
-        p = o + x * xu + y * yv - z * h;
-        if (ab) *ab = Vec2(std::clamp((xu - x0) / (x1 - x0), 0.f, 1.f), std::clamp((yv - y0) / (y1 - y0), 0.f, 1.f));
+        float yv = hv2 < OneMinusEpsilon ? hv * dd * rsqrt(1.f - hv2) : (hv > 0.f ? sy1 : sy0);
+        yv = std::clamp(yv, sy0, sy1);
+        const Vec3 d = x * xu + y * yv - z * sh;  // o to p, over m
+        p = o + d * m;
+        if (wi || dist) {
+            const float l2 = dd2 + yv * yv, il = rsqrt(l2);
+            if (wi) *wi = d * il;
+            if (dist) *dist = m * (l2 * il);
+        }
+        if (ab) *ab = Vec2(std::clamp((xu - sx0) / (sx1 - sx0), 0.f, 1.f), std::clamp((yv - sy0) / (sy1 - sy0), 0.f, 1.f));
         return std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z);
     }
 };

@@ -17,6 +17,14 @@ public:
     virtual ~Camera() = default;
     /// Primary ray with x/y differentials for a one-pixel step. Returns the ray weight.
     virtual float generate_ray(const CameraSample &s, RayDifferential &ray) const = 0;
+    /// The same primary ray without differentials (has_differentials false; rx_*, ry_* not
+    /// set), for render loops whose integrator reads none (Integrator::camera_differentials).
+    /// Cameras override it to skip the two offset rays; the default drops them.
+    virtual float generate_ray_no_differentials(const CameraSample &s, RayDifferential &ray) const {
+        const float w = generate_ray(s, ray);
+        ray.has_differentials = false;
+        return w;
+    }
     int width() const { return m_width; }
     int height() const { return m_height; }
     virtual std::string to_string() const = 0;

@@ -20,12 +20,17 @@ struct RenderStats {
 class Integrator {
 public:
     virtual ~Integrator() = default;
-    /// Radiance arriving along `ray` (a camera ray with differentials).
+    /// Radiance arriving along `ray` (a camera ray, with differentials when
+    /// camera_differentials says so).
     virtual Spectrum li(const Scene &scene, RayDifferential ray, Sampler &sampler,
                         RenderStats &stats) const = 0;
     virtual std::string to_string() const = 0;
     /// Called once before rendering.
     virtual void preprocess(const Scene &scene) { (void)scene; }
+    /// Whether li() reads the camera ray's differentials (asked after preprocess). When not,
+    /// the render loop makes camera rays without them (two camera rays less per sample:
+    /// pay only for what the scene uses). The default is the safe answer.
+    virtual bool camera_differentials(const Scene &scene) const { (void)scene; return true; }
 };
 
 }  // namespace meso

@@ -70,6 +70,9 @@ struct Window {
 void render_pass(const Scene &scene, const RenderOptions &opts, const Window &win, int first, int n, float diff_scale,
                  Film &film, tbb::enumerable_thread_specific<RenderStats> &stats) {
     const int tiles_x = (win.w + TileSize - 1) / TileSize, tiles_y = (win.h + TileSize - 1) / TileSize;
+    // Camera rays carry differentials only where the integrator reads them (asked after its
+    // preprocess): otherwise two camera rays less per sample.
+    const bool differentials = scene.integrator->camera_differentials(scene);
     tbb::parallel_for(tbb::blocked_range2d<int>(0, tiles_y, 1, 0, tiles_x, 1), [&](const tbb::blocked_range2d<int> &r) {
         std::unique_ptr<Sampler> sampler = scene.sampler->clone();
         if (opts.seed) sampler->set_seed(*opts.seed);
@@ -92,8 +95,13 @@ void render_pass(const Scene &scene, const RenderOptions &opts, const Window &wi
                             float w;
                             {
                                 PhaseScope phase(Phase::Camera);
-                                w = scene.camera->generate_ray(cs, ray);
-                                ray.scale_differentials(diff_scale);
+                                if (differentials) {
+                                    w = scene.camera->generate_ray(cs, ray);
+                                    ray.scale_differentials(diff_scale);
+                                } else {
+                                    w = scene.camera->generate_ray_no_differentials(cs, ray);
+                                    ray.footprint_scale *= diff_scale;
+                                }
                             }
                             Spectrum L = scene.integrator->li(scene, ray, *sampler, st) * w;
                             if (!L.is_finite()) {

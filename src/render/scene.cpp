@@ -16,6 +16,11 @@ void Scene::build() {
     for (auto &s : shapes) m_accel->add(s.get());
     m_accel->commit();
     m_accel->bounds(m_bmin, m_bmax);
+    materials_read_footprints = has_lod_shapes = false;
+    for (auto &s : shapes) {
+        materials_read_footprints |= s->material && s->material->uses_footprint();
+        has_lod_shapes |= s->lod != nullptr;
+    }
     if (shapes.empty() || !is_finite(m_bmin) || !is_finite(m_bmax) || m_bmin.x > m_bmax.x) {
         m_bmin = Vec3(-1, -1, -1);
         m_bmax = Vec3(1, 1, 1);

@@ -29,6 +29,12 @@ public:
     std::vector<std::shared_ptr<Shape>> shapes;
     std::vector<std::shared_ptr<Light>> lights;           ///< all lights (area lights included)
     std::vector<const Light *> infinite_lights;           ///< subset: environment lights
+    /// What of the scene reads a ray-differential footprint (set by build()): a material
+    /// (Material::uses_footprint: filtered textures, NDF filtering) at every hit, or an LoD
+    /// shape, whose level comes from the camera ray's footprint. Integrators ask for camera
+    /// differentials only when something does (Integrator::camera_differentials).
+    bool materials_read_footprints = true;
+    bool has_lod_shapes = true;
 
     /// Builds the BVH, preprocesses lights, sets up light selection. Call once.
     void build();
