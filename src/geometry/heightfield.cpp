@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 #include <fmt/format.h>
 #include "core/error.h"
 #if defined(__SSE2__)
@@ -14,6 +15,7 @@ namespace meso {
 namespace {
 
 inline int64_t wrap_index(int64_t i, int n) {
+    if (i >= 0 && i < n) return i;  // the common case, without an integer division
     int64_t a = i % n;
     return a < 0 ? a + n : a;
 }
@@ -304,6 +306,7 @@ inline float next_up(float x) {
 inline float next_down(float x) { return -next_up(-x); }
 
 inline int64_t floor_div(int64_t a, int64_t b) {
+    if (a >= 0 && a < b) return 0;  // the common case, without an integer division
     int64_t q = a / b;
     return (a % b != 0 && a < 0) ? q - 1 : q;
 }
@@ -540,22 +543,33 @@ struct Heightfield::Traversal {
     int block_overlap(const NodeBlock &b, const float *mm, const TileSegment &s) const {
         const int span = 1 << b.level;
 #if defined(__SSE2__)
-        // Column c' (lane c') of the row is node column c = c' or, towards -x, 3 - c'.
-        auto col_x = [&](int c) { return s.tile_x + float(std::min((b.i0 + c) * span, f.m_w)); };
-        const __m128 x0 = flip_x ? _mm_setr_ps(col_x(3), col_x(2), col_x(1), col_x(0))
-                                 : _mm_setr_ps(col_x(0), col_x(1), col_x(2), col_x(3));
-        const __m128 x1 = flip_x ? _mm_setr_ps(col_x(4), col_x(3), col_x(2), col_x(1))
-                                 : _mm_setr_ps(col_x(1), col_x(2), col_x(3), col_x(4));
+        // Planes: lane k holds tile + float(min((first + k) span, size)) (rounding is
+        // monotone, so the min may be taken after the conversion: node_overlaps' values).
+        const __m128i k4 = _mm_sll_epi32(_mm_setr_epi32(0, 1, 2, 3), _mm_cvtsi32_si128(b.level));
+        auto planes = [&](int first, float tile, int size) {
+            const __m128 v = _mm_cvtepi32_ps(_mm_add_epi32(_mm_set1_epi32(first * span), k4));
+            return _mm_add_ps(_mm_set1_ps(tile), _mm_min_ps(v, _mm_set1_ps(float(size))));
+        };
+        // Lane c' of a row is node column c = c' or, towards -x, 3 - c'.
+        __m128 x0 = planes(b.i0, s.tile_x, f.m_w), x1 = planes(b.i0 + 1, s.tile_x, f.m_w);
+        if (flip_x) {
+            x0 = _mm_shuffle_ps(x0, x0, _MM_SHUFFLE(0, 1, 2, 3));
+            x1 = _mm_shuffle_ps(x1, x1, _MM_SHUFFLE(0, 1, 2, 3));
+        }
         const __m128 ox = _mm_set1_ps(o.x), ix = _mm_set1_ps(inv[0]);
         const __m128 u = _mm_mul_ps(_mm_sub_ps(x0, ox), ix), v = _mm_mul_ps(_mm_sub_ps(x1, ox), ix);
         const __m128 ta = _mm_min_ps(v, u), tb = _mm_max_ps(u, v);
+        // The rows' y slabs, lane r for row r (as slab() sorts them).
+        const __m128 oy = _mm_set1_ps(o.y), iy = _mm_set1_ps(inv[1]);
+        const __m128 uy = _mm_mul_ps(_mm_sub_ps(planes(b.j0, s.tile_y, f.m_h), oy), iy);
+        const __m128 vy = _mm_mul_ps(_mm_sub_ps(planes(b.j0 + 1, s.tile_y, f.m_h), oy), iy);
+        const __m128 tcs = _mm_min_ps(vy, uy), tds = _mm_max_ps(uy, vy);
         const __m128 oz = _mm_set1_ps(o.z), iz = _mm_set1_ps(inv[2]);
         const __m128 seg0 = _mm_set1_ps(s.seg0), seg1 = _mm_set1_ps(s.seg1), pad = _mm_set1_ps(s.pad);
-        int mask = 0;
-        for (int r = 0; r < b.nrows; ++r) {
-            float tc, td;
-            slab(s.tile_y + float((b.j0 + r) * span), s.tile_y + float(std::min((b.j0 + r + 1) * span, f.m_h)), o.y,
-                 inv[1], tc, td);
+        auto row = [&](auto R) {
+            constexpr int r = decltype(R)::value;
+            const __m128 tc = _mm_shuffle_ps(tcs, tcs, _MM_SHUFFLE(r, r, r, r));
+            const __m128 td = _mm_shuffle_ps(tds, tds, _MM_SHUFFLE(r, r, r, r));
             __m128 mn = _mm_loadu_ps(mm + 4 * r), mx = _mm_loadu_ps(mm + 16 + 4 * r);
             if (flip_x) {
                 mn = _mm_shuffle_ps(mn, mn, _MM_SHUFFLE(0, 1, 2, 3));
@@ -563,11 +577,15 @@ struct Heightfield::Traversal {
             }
             const __m128 e = _mm_mul_ps(_mm_sub_ps(mn, oz), iz), g = _mm_mul_ps(_mm_sub_ps(mx, oz), iz);
             const __m128 te = _mm_min_ps(g, e), tf = _mm_max_ps(e, g);
-            const __m128 t_near = _mm_max_ps(seg0, _mm_max_ps(te, _mm_max_ps(_mm_set1_ps(tc), ta)));
-            const __m128 t_far = _mm_min_ps(seg1, _mm_min_ps(tf, _mm_min_ps(_mm_set1_ps(td), tb)));
-            const int row = _mm_movemask_ps(_mm_cmple_ps(_mm_sub_ps(t_near, pad), _mm_add_ps(t_far, pad)));
-            mask |= row << 4 * (flip_y ? 3 - r : r);
-        }
+            const __m128 t_near = _mm_max_ps(seg0, _mm_max_ps(te, _mm_max_ps(tc, ta)));
+            const __m128 t_far = _mm_min_ps(seg1, _mm_min_ps(tf, _mm_min_ps(td, tb)));
+            const int pass = _mm_movemask_ps(_mm_cmple_ps(_mm_sub_ps(t_near, pad), _mm_add_ps(t_far, pad)));
+            return pass << 4 * (flip_y ? 3 - r : r);
+        };
+        int mask = row(std::integral_constant<int, 0>{});
+        if (b.nrows > 1) mask |= row(std::integral_constant<int, 1>{});
+        if (b.nrows > 2) mask |= row(std::integral_constant<int, 2>{});
+        if (b.nrows > 3) mask |= row(std::integral_constant<int, 3>{});
         return mask & block_exist(b);
 #else
         int mask = 0;
