@@ -415,10 +415,10 @@ struct Heightfield::Traversal {
         return s;
     }
 
-    /// Starts below the tile's root: at the lowest level whose nodes are wider than the
-    /// segment's footprint in this tile, so one 2 x 2 block of nodes covers it (a short
-    /// segment through a shell tetrahedron skips most of the pyramid). The footprint is
-    /// padded; extra nodes are only culled.
+    /// Starts below the tile's root: at the lowest level at which the segment's footprint in
+    /// this tile lies within 4 x 4 nodes, the start block (a short segment through a shell
+    /// tetrahedron skips most of the pyramid). The footprint is padded; extra nodes are only
+    /// culled.
     NodeBlock start_block(const TileSegment &s) const {
         const int top = int(f.m_levels.size()) - 1;
         const float xa = o.x + s.seg0 * d.x - s.tile_x, xb = o.x + s.seg1 * d.x - s.tile_x;
@@ -426,16 +426,16 @@ struct Heightfield::Traversal {
         const float bx0 = std::max(std::min(xa, xb) - 1e-3f, 0.f), bx1 = std::min(std::max(xa, xb) + 1e-3f, float(f.m_w));
         const float by0 = std::max(std::min(ya, yb) - 1e-3f, 0.f), by1 = std::min(std::max(ya, yb) + 1e-3f, float(f.m_h));
         const float extent = std::max(bx1 - bx0, by1 - by0);
-        int k = top;
-        if (std::isfinite(extent) && bx1 >= bx0 && by1 >= by0) {
-            k = 0;
-            while (k < top && float(1 << k) < extent + 1.f) ++k;
-        }
+        if (!(std::isfinite(extent) && bx1 >= bx0 && by1 >= by0)) return {top, 0, 0, 1, 1};
+        const int ix0 = int(bx0), ix1 = int(bx1), iy0 = int(by0), iy1 = int(by1);
+        // No level below floor(log2(extent)) - 2 holds the footprint in 4 nodes an axis.
+        int k = extent >= 8.f ? std::min(std::ilogb(extent) - 2, top) : 0;
+        while (k < top && ((ix1 >> k) - (ix0 >> k) > 3 || (iy1 >> k) - (iy0 >> k) > 3)) ++k;
         if (k >= top) return {top, 0, 0, 1, 1};
         const Level &L = f.m_levels[k];
-        const int i0 = std::min(int(bx0) >> k, L.w - 1), i1 = std::min(int(bx1) >> k, L.w - 1);
-        const int j0 = std::min(int(by0) >> k, L.h - 1), j1 = std::min(int(by1) >> k, L.h - 1);
-        return {k, i0, j0, i1 > i0 ? 2 : 1, j1 > j0 ? 2 : 1};
+        const int i0 = std::min(ix0 >> k, L.w - 1), i1 = std::min(ix1 >> k, L.w - 1);
+        const int j0 = std::min(iy0 >> k, L.h - 1), j1 = std::min(iy1 >> k, L.h - 1);
+        return {k, i0, j0, i1 - i0 + 1, j1 - j0 + 1};
     }
 
     /// The nodes of `b` whose bit is set in `mask` (bit c' + 4 r': the node visited c'-th in
