@@ -415,8 +415,8 @@ struct Heightfield::Traversal {
         return s;
     }
 
-    /// Starts below the tile's root: at the lowest level at which the segment's footprint in
-    /// this tile lies within 4 x 4 nodes, the start block (a short segment through a shell
+    /// Starts below the tile's root: at the lowest even level at which the segment's footprint
+    /// in this tile lies within 4 x 4 nodes, the start block (a short segment through a shell
     /// tetrahedron skips most of the pyramid). The footprint is padded; extra nodes are only
     /// culled.
     NodeBlock start_block(const TileSegment &s) const {
@@ -431,6 +431,9 @@ struct Heightfield::Traversal {
         // No level below floor(log2(extent)) - 2 holds the footprint in 4 nodes an axis.
         int k = extent >= 8.f ? std::min(std::ilogb(extent) - 2, top) : 0;
         while (k < top && ((ix1 >> k) - (ix0 >> k) > 3 || (iy1 >> k) - (iy0 >> k) > 3)) ++k;
+        // An even level: the steps of two levels then end on the leaves (no 2 x 2 step from
+        // level 1, whose heights are gathered), in as many steps.
+        k += k & 1;
         if (k >= top) return {top, 0, 0, 1, 1};
         const Level &L = f.m_levels[k];
         const int i0 = std::min(ix0 >> k, L.w - 1), i1 = std::min(ix1 >> k, L.w - 1);
@@ -602,7 +605,12 @@ struct Heightfield::Traversal {
     /// block, a level-1 node's children): its heights gathered.
     int gathered_overlap(const NodeBlock &b, const TileSegment &s) const {
         const Level &L = f.m_levels[b.level];
-        alignas(16) float mm[32] = {};
+        alignas(16) float mm[32];
+#if defined(__SSE2__)
+        for (int k = 0; k < 32; k += 4) _mm_store_ps(mm + k, _mm_setzero_ps());  // not rep stos
+#else
+        std::fill(mm, mm + 32, 0.f);
+#endif
         for (int r = 0; r < b.nrows; ++r)
             for (int c = 0; c < b.ncols; ++c) {
                 mm[4 * r + c] = L.min_at(b.i0 + c, b.j0 + r);
