@@ -101,6 +101,10 @@ void map_to_cell(const Tet &T, const double w[3], double c[3]) {
 /// +1 (-1): the cell-space point (x, y, h) (x, y relative to the integer cell origin ox, oy)
 /// lies above (below) the heightfield by more than `eps`; 0: too close to tell.
 int side_of_surface(const Heightfield &hf, double x, double y, double h, int64_t ox, int64_t oy, double eps) {
+    // Beyond the field's height range (a segment's end on the top or bottom of the shell): no
+    // lookup (the bilinear height lies in [min, max] up to round-off far below eps).
+    if (h > double(hf.max_height()) + eps) return 1;
+    if (h < double(hf.min_height()) - eps) return -1;
     // The field is periodic: the origin reduced to one period keeps x + ox small (a huge
     // tiling would otherwise round the cell coordinate beyond what eps covers).
     if (ox < 0 || ox >= hf.width()) ox %= hf.width();
