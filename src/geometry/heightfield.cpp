@@ -450,9 +450,14 @@ struct Heightfield::Traversal {
         while (mask) {
             const int q = 31 - __builtin_clz(unsigned(mask));
             mask ^= 1 << q;
-            const int c = q & 3, r = q >> 2;
-            stack.push({b.level, b.i0 + (flip_x ? 3 - c : c), b.j0 + (flip_y ? 3 - r : r)});
+            stack.push(block_node(b, q));
         }
+    }
+
+    /// The node of `b` at bit q of block_overlap's mask.
+    PyramidNode block_node(const NodeBlock &b, int q) const {
+        const int c = q & 3, r = q >> 2;
+        return {b.level, b.i0 + (flip_x ? 3 - c : c), b.j0 + (flip_y ? 3 - r : r)};
     }
 
     /// The bits of block_overlap's mask for the nodes of `b` (all exist).
@@ -636,12 +641,21 @@ struct Heightfield::Traversal {
         const NodeBlock start = start_block(s);
         push_block(start, Simd ? gathered_overlap(start, s) : block_exist(start), stack);
         float x0, y0;
-        while (!stack.empty()) {
-            const PyramidNode nd = stack.pop();
+        PyramidNode nd;
+        bool next = false;  // Simd: nd is the front node of the block just tested (not pushed)
+        while (next || !stack.empty()) {
+            if (!next) nd = stack.pop();
+            next = false;
             if constexpr (Simd) {
                 if (nd.level > 0) {
                     const NodeBlock b = below(nd);
-                    push_block(b, below_overlap(nd, b, s), stack);
+                    const int mask = below_overlap(nd, b, s);
+                    if (!mask) continue;
+                    // The front node is visited next: taken at once instead of pushed and popped.
+                    const int q = __builtin_ctz(unsigned(mask));
+                    push_block(b, mask ^ (1 << q), stack);
+                    nd = block_node(b, q);
+                    next = true;
                     continue;
                 }
                 x0 = s.tile_x + float(nd.i);
