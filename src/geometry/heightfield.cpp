@@ -289,7 +289,9 @@ struct CellPatch {
 };
 
 /// Relative widening of the node intervals, which only cull (the leaves clip exactly):
-/// covers the float round-off of the slab values (~2e-7).
+/// covers the float round-off of the slab values (~2e-7). Relative to the tile segment's
+/// ends: a node is culled or kept by a comparison of values within the segment, and slab
+/// values far outside it (up to +-1e30 for a ray parallel to an axis) are clamped to it.
 constexpr float kNodePad = 1e-6f;
 
 /// std::nextafter(x, +infinity), by the bits (no libm call in the leaf test).
@@ -334,9 +336,10 @@ inline void clip_to_unit(double l, double dd, double &c0, double &c1) {
 }  // namespace
 
 /// One traverse() call. The ray is walked over the tiles it crosses (TileWalk); in each
-/// tile, the pyramid is descended front to back from a start level that fits the ray's
-/// footprint (push_start_nodes), nodes whose padded [min, max] box the segment misses are
-/// culled (node_overlaps), and the leaves solve the exact bilinear patch (leaf_root).
+/// tile, the pyramid is descended front to back, two levels a step, from a start block that
+/// holds the ray's footprint (start_block), nodes whose padded [min, max] box the segment
+/// misses are culled (node_overlaps, block_overlap), and the leaves solve the exact bilinear
+/// patch (leaf_root).
 struct Heightfield::Traversal {
     const Heightfield &f;
     Vec3 o, d;
@@ -469,7 +472,7 @@ struct Heightfield::Traversal {
     }
 
     /// Whether the segment meets the node's box (cells in x, y; its [min, max] in height),
-    /// padded. (x0, y0): the box's lower corner.
+    /// both padded by the segment's pad. (x0, y0): the box's lower corner.
     bool node_overlaps(const PyramidNode &nd, const TileSegment &s, float &x0, float &y0) const {
         const Level &L = f.m_levels[nd.level];
         const int span = 1 << nd.level;
