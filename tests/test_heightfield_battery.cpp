@@ -1,7 +1,8 @@
 // The heightfield intersector's ray battery: 10^6 rays aimed at surface points from
 // above at every angle up to 89.9 degrees (no false misses, no off-surface hits),
 // corners, edges and tile boundaries, rays from inside the slab and below, horizontal
-// and degenerate directions, and the timing. Helpers: heightfield_test_util.h.
+// and degenerate directions, the block traversal's start levels and block shapes, and the
+// timing. Helpers: heightfield_test_util.h.
 #include "heightfield_test_util.h"
 
 namespace {
@@ -353,6 +354,88 @@ TEST(HeightfieldBattery, RaysFromInsideTheSlabAndFromBelow) {
         }
         grazes += st.ref_grazes;
         EXPECT_LT(st.ref_grazes, st.ref_checked / 50) << f.name;
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// The block traversal's start and shape: the pyramid in 4 x 4 blocks (maps whose sizes are
+// no multiple of 4 leave blocks partly empty at every level; an odd top level ends in a
+// 2 x 2 step), the start block (up to 4 x 4 nodes at the lowest even level that holds the
+// footprint: windows from a fraction of a cell to hundreds), rays leaving the surface in
+// every direction up to grazing, and height scales from zero to huge.
+
+/// Rays of one kind per k % 3: from just off the surface (up or down, to 89.9 degrees), from
+/// above through a window [t0, t1] about the crossing whose footprint spans `cells`, and
+/// grazing rays across the whole field.
+Ray block_case(const Surface &hf, PCG32 &rng, int k, double &t0, double &t1) {
+    const double range = double(hf.max_height()) - hf.min_height(), span = std::max(range, 1e-3);
+    const double x = hf.width() * rng.next_double(), y = hf.height() * rng.next_double();
+    const double theta = k % 7 == 0 ? kGrazing : rng.next_double() * kGrazing;
+    Vec3 d = down_dir(theta, 2 * kPi * rng.next_double(), k % 11 == 0);
+    const double hz = double(exact_height(hf, LD(float(x)), LD(float(y))));
+    t0 = 0;
+    if (k % 3 == 0) {  // from the surface: a float's rounding above or below it
+        if (rng.next_bounded(2)) d.z = -d.z;
+        t1 = (std::abs(hz) + 2 * span + 1) / std::max(std::abs(double(d.z)), 1e-3) + 1;
+        const double z = hz + (rng.next_bounded(2) ? 1 : -1) * 1e-4 * span * (1 + std::abs(hz));
+        return Ray{Vec3(float(x), float(y), float(z)), d};
+    }
+    if (k % 3 == 1) {  // from above, through a window of `cells` about the crossing
+        static const double kCells[] = {0.3, 1.5, 3.5, 5, 13, 17, 70, 300};
+        const double cells = kCells[rng.next_bounded(8)];
+        const double s = (double(hf.max_height()) - hz + 0.1 * span) / -double(d.z);
+        const Ray r{Vec3(float(x - s * d.x), float(y - s * d.y), float(hz - s * d.z)), d};
+        const double w = cells / std::max(std::hypot(double(d.x), double(d.y)), 1e-9);
+        t0 = std::max(0.0, s - w * rng.next_double());
+        t1 = t0 + w;
+        return r;
+    }
+    d.z = float(-std::abs(d.z) * 1e-3);  // grazing across the field
+    t1 = 4.0 * (hf.width() + hf.height());
+    return Ray{Vec3(float(x), float(y), float(hf.max_height() + 0.01 * span)), d};
+}
+
+TEST(HeightfieldBattery, BlockTraversalStartsAndSizesAgreeWithTheReference) {
+    std::vector<Field> fields = {
+        {"one_by_one", HeightMap(1, 1, 0.7f), 2.f, -1.f},  {"two_by_two", noise_map(2, 2, 21), 1.f, 0.f},
+        {"four_by_four", noise_map(4, 4, 22), 1.f, 0.f},   {"noise7x9", noise_map(7, 9, 23), 1.f, 0.f},
+        {"sin128_odd_top", sinusoid_map(128, 128, 24), 1.f, 0.f}, {"noise130x66", noise_map(130, 66, 25), 2.f, 0.f},
+        {"sin64_huge", sinusoid_map(64, 64, 26), 1e4f, 0.f},      {"noise16_zero", noise_map(16, 16, 27), 0.f, 0.5f},
+        {"noise16_tiny", noise_map(16, 16, 28), 1e-6f, 3.f}};
+    PCG32 rng(123);
+    for (const Field &f : fields) {
+        Surface hf(f.map, f.scale, f.offset);
+        const double slope = max_slope_of(hf);
+        int failures = 0;
+        BatteryStats st;
+        for (int k = 0; k < 6000 && failures < 5; ++k) {
+            double t0, t1;
+            const Ray r = block_case(hf, rng, k, t0, t1);
+            // A window that opens on the surface to within float resolution of its start (a
+            // crossing that rounds to t0, excluded from (t0, t1]) answers by rounding.
+            if (std::abs(double(gap(hf, r, LD(float(t0))))) <= gap_tolerance(r, float(t0), hf.max_height(), slope))
+                continue;
+            HeightfieldHit h, g;
+            const bool hit = hf.intersect(r.o, r.d, float(t0), float(t1), h);
+            const bool ref_hit = hf.intersect_reference(r.o, r.d, float(t0), float(t1), g);
+            EXPECT_EQ(hit, hf.occluded(r.o, r.d, float(t0), float(t1))) << f.name << ": " << describe(r);
+            EXPECT_TRUE(hit == ref_hit && (!hit || h.t == g.t)) << f.name << ": SIMD and scalar differ, " << describe(r);
+            if (hit && !hit_on_surface(hf, r, h, slope)) {
+                ADD_FAILURE() << f.name << ": " << describe(r) << ": " << hit_on_surface(hf, r, h, slope).message();
+                ++failures;
+                continue;
+            }
+            std::string why;
+            ++st.ref_checked;
+            // The long-double cell-walking tracer on the same window, as floats pass it.
+            if (!same_first_hit(hf, r, double(float(t0)), double(float(t1)), hit, h.t,
+                                reference_hit(hf, r, LD(float(t0)), LD(float(t1))), slope, st.ref_grazes, why)) {
+                ADD_FAILURE() << f.name << ": " << describe(r) << " window [" << t0 << ", " << t1 << "]: " << why;
+                ++failures;
+            }
+        }
+        EXPECT_EQ(failures, 0) << f.name;
+        EXPECT_LT(st.ref_grazes, st.ref_checked / 50 + 1) << f.name;
     }
 }
 

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 #include <fmt/format.h>
 #include "core/error.h"
 #if defined(__SSE2__)
@@ -14,6 +15,7 @@ namespace meso {
 namespace {
 
 inline int64_t wrap_index(int64_t i, int n) {
+    if (i >= 0 && i < n) return i;  // the common case, without an integer division
     int64_t a = i % n;
     return a < 0 ? a + n : a;
 }
@@ -63,18 +65,18 @@ FlatLevel coarser_level(const FlatLevel &c) {
     return n;
 }
 
-/// The level's min/max in 2 x 2 blocks of nodes (Heightfield::Level::quads), qw blocks a row.
-std::vector<float> pack_quads(const FlatLevel &f, int qw) {
-    const int qh = (f.h + 1) / 2;
-    std::vector<float> quads(size_t(qw) * qh * 8, 0.f);
+/// The level's min/max in 4 x 4 blocks of nodes (Heightfield::Level::blocks), bw blocks a row.
+std::vector<float> pack_blocks(const FlatLevel &f, int bw) {
+    const int bh = (f.h + 3) / 4;
+    std::vector<float> blocks(size_t(bw) * bh * 32, 0.f);
     for (int j = 0; j < f.h; ++j)
         for (int i = 0; i < f.w; ++i) {
-            float *q = &quads[(size_t(j >> 1) * qw + size_t(i >> 1)) * 8];
-            const int slot = (i & 1) | (j & 1) << 1;
+            float *q = &blocks[(size_t(j >> 2) * bw + size_t(i >> 2)) * 32];
+            const int slot = (i & 3) | (j & 3) << 2;
             q[slot] = f.minmax[(size_t(j) * f.w + i) * 2];
-            q[4 + slot] = f.minmax[(size_t(j) * f.w + i) * 2 + 1];
+            q[16 + slot] = f.minmax[(size_t(j) * f.w + i) * 2 + 1];
         }
-    return quads;
+    return blocks;
 }
 
 }  // namespace
@@ -98,7 +100,7 @@ Heightfield::Heightfield(const HeightMap &map, float scale, float offset) {
     }
     // Level 0: one node per cell, min/max of its four corners (wrapping); level k + 1: node
     // (i, j) covers the children (2i..2i+1, 2j..2j+1) of level k that exist. Built flat (2
-    // floats a node), stored in 2 x 2 blocks (Level::quads).
+    // floats a node), stored in 4 x 4 blocks (Level::blocks).
     FlatLevel flat{m_w, m_h, std::vector<float>(size_t(m_w) * m_h * 2)};
     for (int j = 0; j < m_h; ++j) {
         int j1 = j + 1 == m_h ? 0 : j + 1;
@@ -114,8 +116,8 @@ Heightfield::Heightfield(const HeightMap &map, float scale, float offset) {
         Level L;
         L.w = flat.w;
         L.h = flat.h;
-        L.qw = (flat.w + 1) / 2;
-        L.quads = pack_quads(flat, L.qw);
+        L.bw = (flat.w + 3) / 4;
+        L.blocks = pack_blocks(flat, L.bw);
         m_levels.push_back(std::move(L));
         if (flat.w == 1 && flat.h == 1) break;
         flat = coarser_level(flat);
@@ -158,7 +160,7 @@ HeightMap Heightfield::box_downsampled(int f) const {
 
 size_t Heightfield::memory_bytes() const {
     size_t bytes = m_heights.size() * sizeof(float);
-    for (const Level &l : m_levels) bytes += l.quads.size() * sizeof(float);
+    for (const Level &l : m_levels) bytes += l.blocks.size() * sizeof(float);
     return bytes;
 }
 
@@ -251,18 +253,19 @@ struct PyramidNode {
     int level, i, j;
 };
 
-/// The nodes still to visit in the current tile, depth first: the top one is popped next.
+/// The nodes still to visit in the current tile, depth first: the top one is popped next. A
+/// step pushes at most 16 nodes (a 4 x 4 block) and goes down at least one level.
 struct NodeStack {
-    PyramidNode nodes[96];
+    PyramidNode nodes[16 * 32 + 4];
     int size = 0;
     void push(const PyramidNode &n) { nodes[size++] = n; }
     PyramidNode pop() { return nodes[--size]; }
     bool empty() const { return size == 0; }
 };
 
-/// A 2 x 2 block of nodes of `level` from (i0, j0); bit c (x + 2 y) of `exist`: node c exists.
+/// The ncols x nrows nodes of `level` from (i0, j0) (at most 4 x 4, all of which exist).
 struct NodeBlock {
-    int level, i0, j0, exist;
+    int level, i0, j0, ncols, nrows;
 };
 
 /// Position of the 2D DDA over the W x H tile grid.
@@ -286,7 +289,9 @@ struct CellPatch {
 };
 
 /// Relative widening of the node intervals, which only cull (the leaves clip exactly):
-/// covers the float round-off of the slab values (~2e-7).
+/// covers the float round-off of the slab values (~2e-7). Relative to the tile segment's
+/// ends: a node is culled or kept by a comparison of values within the segment, and slab
+/// values far outside it (up to +-1e30 for a ray parallel to an axis) are clamped to it.
 constexpr float kNodePad = 1e-6f;
 
 /// std::nextafter(x, +infinity), by the bits (no libm call in the leaf test).
@@ -303,6 +308,7 @@ inline float next_up(float x) {
 inline float next_down(float x) { return -next_up(-x); }
 
 inline int64_t floor_div(int64_t a, int64_t b) {
+    if (a >= 0 && a < b) return 0;  // the common case, without an integer division
     int64_t q = a / b;
     return (a % b != 0 && a < 0) ? q - 1 : q;
 }
@@ -330,16 +336,17 @@ inline void clip_to_unit(double l, double dd, double &c0, double &c1) {
 }  // namespace
 
 /// One traverse() call. The ray is walked over the tiles it crosses (TileWalk); in each
-/// tile, the pyramid is descended front to back from a start level that fits the ray's
-/// footprint (push_start_nodes), nodes whose padded [min, max] box the segment misses are
-/// culled (node_overlaps), and the leaves solve the exact bilinear patch (leaf_root).
+/// tile, the pyramid is descended front to back, two levels a step, from a start block that
+/// holds the ray's footprint (start_block), nodes whose padded [min, max] box the segment
+/// misses are culled (node_overlaps, block_overlap), and the leaves solve the exact bilinear
+/// patch (leaf_root).
 struct Heightfield::Traversal {
     const Heightfield &f;
     Vec3 o, d;
     float inv[3];         ///< 1/d, tiny-safe
     float tmin, tmax;     ///< clipped to the field's height slab by clip_to_height_slab
     int64_t ox, oy;       ///< the caller's integer cell offset
-    int child_mask;       ///< xor of child indices that visits children front to back
+    bool flip_x, flip_y;  ///< the ray runs towards -x, -y: a block's columns, rows are visited last to first
 
     Traversal(const Heightfield &field, Vec3 o_, Vec3 d_, float tmin_, float tmax_, int64_t ox_, int64_t oy_)
         : f(field), o(o_), d(d_), tmin(tmin_), tmax(tmax_), ox(ox_), oy(oy_) {
@@ -354,7 +361,8 @@ struct Heightfield::Traversal {
         inv[0] = safe_inv(d.x);
         inv[1] = safe_inv(d.y);
         inv[2] = safe_inv(d.z);
-        child_mask = (d.x < 0 ? 1 : 0) | (d.y < 0 ? 2 : 0);
+        flip_x = d.x < 0;
+        flip_y = d.y < 0;
     }
 
     /// Clips [tmin, tmax] to the height slab of the whole field; false if nothing is left.
@@ -410,10 +418,10 @@ struct Heightfield::Traversal {
         return s;
     }
 
-    /// Starts below the tile's root: at the lowest level whose nodes are wider than the
-    /// segment's footprint in this tile, so one 2 x 2 block of nodes covers it (a short
-    /// segment through a shell tetrahedron skips most of the pyramid). The footprint is
-    /// padded; extra nodes are only culled.
+    /// Starts below the tile's root: at the lowest even level at which the segment's footprint
+    /// in this tile lies within 4 x 4 nodes, the start block (a short segment through a shell
+    /// tetrahedron skips most of the pyramid). The footprint is padded; extra nodes are only
+    /// culled.
     NodeBlock start_block(const TileSegment &s) const {
         const int top = int(f.m_levels.size()) - 1;
         const float xa = o.x + s.seg0 * d.x - s.tile_x, xb = o.x + s.seg1 * d.x - s.tile_x;
@@ -421,54 +429,72 @@ struct Heightfield::Traversal {
         const float bx0 = std::max(std::min(xa, xb) - 1e-3f, 0.f), bx1 = std::min(std::max(xa, xb) + 1e-3f, float(f.m_w));
         const float by0 = std::max(std::min(ya, yb) - 1e-3f, 0.f), by1 = std::min(std::max(ya, yb) + 1e-3f, float(f.m_h));
         const float extent = std::max(bx1 - bx0, by1 - by0);
-        int k = top;
-        if (std::isfinite(extent) && bx1 >= bx0 && by1 >= by0) {
-            k = 0;
-            while (k < top && float(1 << k) < extent + 1.f) ++k;
-        }
-        if (k >= top) return {top, 0, 0, 1};
+        if (!(std::isfinite(extent) && bx1 >= bx0 && by1 >= by0)) return {top, 0, 0, 1, 1};
+        const int ix0 = int(bx0), ix1 = int(bx1), iy0 = int(by0), iy1 = int(by1);
+        // No level below floor(log2(extent)) - 2 holds the footprint in 4 nodes an axis.
+        int k = extent >= 8.f ? std::min(std::ilogb(extent) - 2, top) : 0;
+        while (k < top && ((ix1 >> k) - (ix0 >> k) > 3 || (iy1 >> k) - (iy0 >> k) > 3)) ++k;
+        // An even level: the steps of two levels then end on the leaves (no 2 x 2 step from
+        // level 1, whose heights are gathered), in as many steps.
+        k += k & 1;
+        if (k >= top) return {top, 0, 0, 1, 1};
         const Level &L = f.m_levels[k];
-        const int i0 = std::min(int(bx0) >> k, L.w - 1), i1 = std::min(int(bx1) >> k, L.w - 1);
-        const int j0 = std::min(int(by0) >> k, L.h - 1), j1 = std::min(int(by1) >> k, L.h - 1);
-        return {k, i0, j0, (i1 > i0 ? 0xF : 0x5) & (j1 > j0 ? 0xF : 0x3)};
+        const int i0 = std::min(ix0 >> k, L.w - 1), i1 = std::min(ix1 >> k, L.w - 1);
+        const int j0 = std::min(iy0 >> k, L.h - 1), j1 = std::min(iy1 >> k, L.h - 1);
+        return {k, i0, j0, i1 - i0 + 1, j1 - j0 + 1};
     }
 
-    /// The nodes of `b` whose bit is set in `mask`, pushed back to front so that the one the
-    /// ray enters first is popped first.
+    /// The nodes of `b` whose bit is set in `mask` (bit c' + 4 r': the node visited c'-th in
+    /// its row, r'-th row; see block_overlap), pushed back to front so that the one the ray
+    /// enters first is popped first. A ray visits the cells it crosses in this order: it moves
+    /// monotonically in x and y, so of two cells it crosses the one in an earlier row (in its
+    /// y direction), or in the same row and an earlier column, comes first.
     void push_block(const NodeBlock &b, int mask, NodeStack &stack) const {
-        for (int q = 3; q >= 0; --q) {
-            const int c = q ^ child_mask;
-            if (mask >> c & 1) stack.push({b.level, b.i0 + (c & 1), b.j0 + (c >> 1)});
+        while (mask) {
+            const int q = 31 - __builtin_clz(unsigned(mask));
+            mask ^= 1 << q;
+            stack.push(block_node(b, q));
         }
+    }
+
+    /// The node of `b` at bit q of block_overlap's mask.
+    PyramidNode block_node(const NodeBlock &b, int q) const {
+        const int c = q & 3, r = q >> 2;
+        return {b.level, b.i0 + (flip_x ? 3 - c : c), b.j0 + (flip_y ? 3 - r : r)};
+    }
+
+    /// The bits of block_overlap's mask for the nodes of `b` (all exist).
+    int block_exist(const NodeBlock &b) const {
+        const int cols = flip_x ? (0xF << (4 - b.ncols)) & 0xF : (1 << b.ncols) - 1;
+        int m = 0;
+        for (int r = 0; r < b.nrows; ++r) m |= cols << 4 * (flip_y ? 3 - r : r);
+        return m;
     }
 
     /// Whether the segment meets the node's box (cells in x, y; its [min, max] in height),
-    /// padded. (x0, y0): the box's lower corner.
+    /// both padded by the segment's pad. (x0, y0): the box's lower corner.
     bool node_overlaps(const PyramidNode &nd, const TileSegment &s, float &x0, float &y0) const {
         const Level &L = f.m_levels[nd.level];
-        const float mm[2] = {L.min_at(nd.i, nd.j), L.max_at(nd.i, nd.j)};
         const int span = 1 << nd.level;
         x0 = s.tile_x + float(nd.i * span);
         y0 = s.tile_y + float(nd.j * span);
         const float x1 = s.tile_x + float(std::min((nd.i + 1) * span, f.m_w));
         const float y1 = s.tile_y + float(std::min((nd.j + 1) * span, f.m_h));
-        float ta = (x0 - o.x) * inv[0], tb = (x1 - o.x) * inv[0];
-        if (ta > tb) std::swap(ta, tb);
-        float tc = (y0 - o.y) * inv[1], td = (y1 - o.y) * inv[1];
-        if (tc > td) std::swap(tc, td);
-        float te = (mm[0] - o.z) * inv[2], tf = (mm[1] - o.z) * inv[2];
-        if (te > tf) std::swap(te, tf);
-        // The pad is relative to the node's own entry and exit, not to the slab values:
-        // a ray (nearly) parallel to x or y has slab values of up to +-1e30 for the
-        // other axis, which would otherwise widen every interval without bound (then
-        // every node passed, and the leaves returned roots of extended patches outside
-        // their cells: hits off the surface).
-        const float xy_near = std::max(ta, tc), xy_far = std::min(tb, td);
-        const float pad = kNodePad * std::max(std::abs(std::max(std::max(xy_near, te), s.seg0)),
-                                              std::abs(std::min(std::min(xy_far, tf), s.seg1))) + 1e-30f;
-        const float t_near = std::max(xy_near - pad, std::max(te - pad, s.seg0 - s.pad));
-        const float t_far = std::min(xy_far + pad, std::min(tf + pad, s.seg1 + s.pad));
-        return t_near <= t_far && !(t_far < tmin) && !(t_near > tmax);
+        float ta, tb, tc, td, te, tf;
+        slab(x0, x1, o.x, inv[0], ta, tb);
+        slab(y0, y1, o.y, inv[1], tc, td);
+        slab(L.min_at(nd.i, nd.j), L.max_at(nd.i, nd.j), o.z, inv[2], te, tf);
+        const float t_near = std::max(std::max(std::max(ta, tc), te), s.seg0);
+        const float t_far = std::min(std::min(std::min(tb, td), tf), s.seg1);
+        return t_near - s.pad <= t_far + s.pad;
+    }
+
+    /// The ray's [t_lo, t_hi] between the planes a and b of one axis (origin p, 1/d inv):
+    /// sorted (block_overlap sorts with the same comparisons in SSE).
+    static void slab(float a, float b, float p, float inv_d, float &t_lo, float &t_hi) {
+        const float u = (a - p) * inv_d, v = (b - p) * inv_d;
+        t_lo = v < u ? v : u;  // _mm_min_ps(v, u)
+        t_hi = u > v ? u : v;  // _mm_max_ps(u, v)
     }
 
     /// The ray's root in the leaf cell (x0, y0) of `nd`, in (tmin, tmax]; `cell` gets its patch.
@@ -509,90 +535,130 @@ struct Heightfield::Traversal {
         hit.h = bilinear_patch(cell.h00, cell.h10, cell.h01, cell.h11, a, b, hit.dhdx, hit.dhdy);
     }
 
-    /// The 2 x 2 block of `nd`'s children (bits of those that exist).
-    NodeBlock children(const PyramidNode &nd) const {
-        const Level &C = f.m_levels[nd.level - 1];
-        const int ci = 2 * nd.i, cj = 2 * nd.j;
-        return {nd.level - 1, ci, cj, (ci + 1 < C.w ? 0xF : 0x5) & (cj + 1 < C.h ? 0xF : 0x3)};
+    /// The block below `nd` that the traversal steps to: its 4 x 4 grandchildren (two levels
+    /// down), or at level 1 its 2 x 2 children (the leaves). Only the nodes that exist.
+    NodeBlock below(const PyramidNode &nd) const {
+        const int step = nd.level >= 2 ? 2 : 1, n = 1 << step;
+        const Level &C = f.m_levels[nd.level - step];
+        const int ci = n * nd.i, cj = n * nd.j;
+        return {nd.level - step, ci, cj, std::min(n, C.w - ci), std::min(n, C.h - cj)};
     }
 
-    /// Bit c set: node c (x + 2 y) of block `b` exists and node_overlaps holds for it; mn, mx:
-    /// the four nodes' min and max heights. The SSE path computes node_overlaps' formula for
-    /// the four nodes at once with the same float operations in the same order
-    /// (std::max(a, b) is _mm_max_ps(b, a), NaNs and signed zeros included), so both paths
-    /// cull the same nodes.
-    int block_overlap(const NodeBlock &b, const float *mn, const float *mx, const TileSegment &s) const {
+    /// Bit c' + 4 r' set: the node visited c'-th in its row, r'-th row (columns and rows of
+    /// `b` in the ray's x and y directions; push_block maps bits to nodes) exists and
+    /// node_overlaps holds for it. mm: 32 floats as in Level::blocks (mins, then maxes; row r
+    /// of the block at 4 r) holding b's nodes from its corner. The SSE path computes
+    /// node_overlaps' formula for four nodes of a row at once with the same float operations
+    /// in the same order (std::max(a, b) is _mm_max_ps(b, a), NaNs and signed zeros
+    /// included), so both paths cull the same nodes.
+    int block_overlap(const NodeBlock &b, const float *mm, const TileSegment &s) const {
+        const int span = 1 << b.level;
 #if defined(__SSE2__)
-        const int span = 1 << b.level, ci = b.i0, cj = b.j0;
-        // The nodes' x planes: column 0 spans [ci, ci + 1) span, column 1 the next, both
-        // clamped to the tile as in node_overlaps; likewise y.
-        const __m128 xs = _mm_setr_ps(s.tile_x + float(ci * span), s.tile_x + float(std::min((ci + 1) * span, f.m_w)),
-                                      s.tile_x + float((ci + 1) * span), s.tile_x + float(std::min((ci + 2) * span, f.m_w)));
-        const __m128 ys = _mm_setr_ps(s.tile_y + float(cj * span), s.tile_y + float(std::min((cj + 1) * span, f.m_h)),
-                                      s.tile_y + float((cj + 1) * span), s.tile_y + float(std::min((cj + 2) * span, f.m_h)));
-        const __m128 tx = _mm_mul_ps(_mm_sub_ps(xs, _mm_set1_ps(o.x)), _mm_set1_ps(inv[0]));
-        const __m128 ty = _mm_mul_ps(_mm_sub_ps(ys, _mm_set1_ps(o.y)), _mm_set1_ps(inv[1]));
-        const __m128 ta0 = _mm_shuffle_ps(tx, tx, _MM_SHUFFLE(2, 0, 2, 0)), tb0 = _mm_shuffle_ps(tx, tx, _MM_SHUFFLE(3, 1, 3, 1));
-        const __m128 tc0 = _mm_shuffle_ps(ty, ty, _MM_SHUFFLE(2, 2, 0, 0)), td0 = _mm_shuffle_ps(ty, ty, _MM_SHUFFLE(3, 3, 1, 1));
+        // Planes: lane k holds tile + float(min((first + k) span, size)) (rounding is
+        // monotone, so the min may be taken after the conversion: node_overlaps' values).
+        const __m128i k4 = _mm_sll_epi32(_mm_setr_epi32(0, 1, 2, 3), _mm_cvtsi32_si128(b.level));
+        auto planes = [&](int first, float tile, int size) {
+            const __m128 v = _mm_cvtepi32_ps(_mm_add_epi32(_mm_set1_epi32(first * span), k4));
+            return _mm_add_ps(_mm_set1_ps(tile), _mm_min_ps(v, _mm_set1_ps(float(size))));
+        };
+        // Lane c' of a row is node column c = c' or, towards -x, 3 - c'.
+        __m128 x0 = planes(b.i0, s.tile_x, f.m_w), x1 = planes(b.i0 + 1, s.tile_x, f.m_w);
+        if (flip_x) {
+            x0 = _mm_shuffle_ps(x0, x0, _MM_SHUFFLE(0, 1, 2, 3));
+            x1 = _mm_shuffle_ps(x1, x1, _MM_SHUFFLE(0, 1, 2, 3));
+        }
+        const __m128 ox = _mm_set1_ps(o.x), ix = _mm_set1_ps(inv[0]);
+        const __m128 u = _mm_mul_ps(_mm_sub_ps(x0, ox), ix), v = _mm_mul_ps(_mm_sub_ps(x1, ox), ix);
+        const __m128 ta = _mm_min_ps(v, u), tb = _mm_max_ps(u, v);
+        // The rows' y slabs, lane r for row r (as slab() sorts them).
+        const __m128 oy = _mm_set1_ps(o.y), iy = _mm_set1_ps(inv[1]);
+        const __m128 uy = _mm_mul_ps(_mm_sub_ps(planes(b.j0, s.tile_y, f.m_h), oy), iy);
+        const __m128 vy = _mm_mul_ps(_mm_sub_ps(planes(b.j0 + 1, s.tile_y, f.m_h), oy), iy);
+        const __m128 tcs = _mm_min_ps(vy, uy), tds = _mm_max_ps(uy, vy);
         const __m128 oz = _mm_set1_ps(o.z), iz = _mm_set1_ps(inv[2]);
-        const __m128 te0 = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(mn), oz), iz);
-        const __m128 tf0 = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(mx), oz), iz);
-        // if (a > b) swap(a, b): a' = min(b, a), b' = max(a, b) in _mm order.
-        const __m128 ta = _mm_min_ps(tb0, ta0), tb = _mm_max_ps(ta0, tb0);
-        const __m128 tc = _mm_min_ps(td0, tc0), td = _mm_max_ps(tc0, td0);
-        const __m128 te = _mm_min_ps(tf0, te0), tf = _mm_max_ps(te0, tf0);
-        const __m128 xy_near = _mm_max_ps(tc, ta), xy_far = _mm_min_ps(td, tb);
-        const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
-        const __m128 lo = _mm_and_ps(_mm_max_ps(_mm_set1_ps(s.seg0), _mm_max_ps(te, xy_near)), abs_mask);
-        const __m128 hi = _mm_and_ps(_mm_min_ps(_mm_set1_ps(s.seg1), _mm_min_ps(tf, xy_far)), abs_mask);
-        const __m128 pad = _mm_add_ps(_mm_mul_ps(_mm_set1_ps(kNodePad), _mm_max_ps(hi, lo)), _mm_set1_ps(1e-30f));
-        const __m128 t_near = _mm_max_ps(_mm_max_ps(_mm_set1_ps(s.seg0 - s.pad), _mm_sub_ps(te, pad)), _mm_sub_ps(xy_near, pad));
-        const __m128 t_far = _mm_min_ps(_mm_min_ps(_mm_set1_ps(s.seg1 + s.pad), _mm_add_ps(tf, pad)), _mm_add_ps(xy_far, pad));
-        const __m128 pass = _mm_and_ps(_mm_cmple_ps(t_near, t_far), _mm_and_ps(_mm_cmpnlt_ps(t_far, _mm_set1_ps(tmin)),
-                                                                                _mm_cmpngt_ps(t_near, _mm_set1_ps(tmax))));
-        return _mm_movemask_ps(pass) & b.exist;
+        const __m128 seg0 = _mm_set1_ps(s.seg0), seg1 = _mm_set1_ps(s.seg1), pad = _mm_set1_ps(s.pad);
+        auto row = [&](auto R) {
+            constexpr int r = decltype(R)::value;
+            const __m128 tc = _mm_shuffle_ps(tcs, tcs, _MM_SHUFFLE(r, r, r, r));
+            const __m128 td = _mm_shuffle_ps(tds, tds, _MM_SHUFFLE(r, r, r, r));
+            __m128 mn = _mm_loadu_ps(mm + 4 * r), mx = _mm_loadu_ps(mm + 16 + 4 * r);
+            if (flip_x) {
+                mn = _mm_shuffle_ps(mn, mn, _MM_SHUFFLE(0, 1, 2, 3));
+                mx = _mm_shuffle_ps(mx, mx, _MM_SHUFFLE(0, 1, 2, 3));
+            }
+            const __m128 e = _mm_mul_ps(_mm_sub_ps(mn, oz), iz), g = _mm_mul_ps(_mm_sub_ps(mx, oz), iz);
+            const __m128 te = _mm_min_ps(g, e), tf = _mm_max_ps(e, g);
+            const __m128 t_near = _mm_max_ps(seg0, _mm_max_ps(te, _mm_max_ps(tc, ta)));
+            const __m128 t_far = _mm_min_ps(seg1, _mm_min_ps(tf, _mm_min_ps(td, tb)));
+            const int pass = _mm_movemask_ps(_mm_cmple_ps(_mm_sub_ps(t_near, pad), _mm_add_ps(t_far, pad)));
+            return pass << 4 * (flip_y ? 3 - r : r);
+        };
+        int mask = row(std::integral_constant<int, 0>{});
+        if (b.nrows > 1) mask |= row(std::integral_constant<int, 1>{});
+        if (b.nrows > 2) mask |= row(std::integral_constant<int, 2>{});
+        if (b.nrows > 3) mask |= row(std::integral_constant<int, 3>{});
+        return mask & block_exist(b);
 #else
         int mask = 0;
         float x0, y0;
-        for (int c = 0; c < 4; ++c)
-            if ((b.exist >> c & 1) && node_overlaps({b.level, b.i0 + (c & 1), b.j0 + (c >> 1)}, s, x0, y0)) mask |= 1 << c;
+        for (int r = 0; r < b.nrows; ++r)
+            for (int c = 0; c < b.ncols; ++c)
+                if (node_overlaps({b.level, b.i0 + c, b.j0 + r}, s, x0, y0))
+                    mask |= 1 << ((flip_x ? 3 - c : c) + 4 * (flip_y ? 3 - r : r));
         return mask;
 #endif
     }
 
-    /// block_overlap of the start block (its heights gathered; nodes that do not exist read as 0).
-    int start_block_overlap(const NodeBlock &b, const TileSegment &s) const {
+    /// block_overlap of a block that is not one 4 x 4 block of the level's storage (the start
+    /// block, a level-1 node's children): its heights gathered.
+    int gathered_overlap(const NodeBlock &b, const TileSegment &s) const {
         const Level &L = f.m_levels[b.level];
-        alignas(16) float mn[4] = {0.f, 0.f, 0.f, 0.f}, mx[4] = {0.f, 0.f, 0.f, 0.f};
-        for (int c = 0; c < 4; ++c)
-            if (b.exist >> c & 1) {
-                mn[c] = L.min_at(b.i0 + (c & 1), b.j0 + (c >> 1));
-                mx[c] = L.max_at(b.i0 + (c & 1), b.j0 + (c >> 1));
+        alignas(16) float mm[32];
+#if defined(__SSE2__)
+        for (int k = 0; k < 32; k += 4) _mm_store_ps(mm + k, _mm_setzero_ps());  // not rep stos
+#else
+        std::fill(mm, mm + 32, 0.f);
+#endif
+        for (int r = 0; r < b.nrows; ++r)
+            for (int c = 0; c < b.ncols; ++c) {
+                mm[4 * r + c] = L.min_at(b.i0 + c, b.j0 + r);
+                mm[16 + 4 * r + c] = L.max_at(b.i0 + c, b.j0 + r);
             }
-        return block_overlap(b, mn, mx, s);
+        return block_overlap(b, mm, s);
     }
 
-    /// block_overlap of `nd`'s children (their heights are one 2 x 2 block of the level below).
-    int children_overlap(const PyramidNode &nd, const TileSegment &s) const {
-        const float *q = f.m_levels[nd.level - 1].quad(nd.i, nd.j);
-        return block_overlap(children(nd), q, q + 4, s);
+    /// block_overlap of the block below `nd` (its heights are one 4 x 4 block of the storage
+    /// when two levels down).
+    int below_overlap(const PyramidNode &nd, const NodeBlock &b, const TileSegment &s) const {
+        if (nd.level == 1) return gathered_overlap(b, s);
+        return block_overlap(b, f.m_levels[b.level].block(nd.i, nd.j), s);
     }
 
     /// The first hit in the tile segment `s`. Reference: a node is tested when popped and all
-    /// its children are pushed. Simd: the start block is tested at once, and below it a
-    /// node's children are tested together when it is popped; only those that pass are
-    /// pushed. Both visit the same leaves in the same order.
+    /// the nodes of the block below it are pushed. Simd: the start block is tested at once,
+    /// and below it the block under a node is tested together when the node is popped; only
+    /// those that pass are pushed. Both visit the same leaves in the same order.
     template <bool AnyHit, bool Simd>
     bool trace_tile(const TileSegment &s, HeightfieldHit *hit) const {
         NodeStack stack;
         const NodeBlock start = start_block(s);
-        push_block(start, Simd ? start_block_overlap(start, s) : start.exist, stack);
+        push_block(start, Simd ? gathered_overlap(start, s) : block_exist(start), stack);
         float x0, y0;
-        while (!stack.empty()) {
-            const PyramidNode nd = stack.pop();
+        PyramidNode nd;
+        bool next = false;  // Simd: nd is the front node of the block just tested (not pushed)
+        while (next || !stack.empty()) {
+            if (!next) nd = stack.pop();
+            next = false;
             if constexpr (Simd) {
                 if (nd.level > 0) {
-                    push_block(children(nd), children_overlap(nd, s), stack);
+                    const NodeBlock b = below(nd);
+                    const int mask = below_overlap(nd, b, s);
+                    if (!mask) continue;
+                    // The front node is visited next: taken at once instead of pushed and popped.
+                    const int q = __builtin_ctz(unsigned(mask));
+                    push_block(b, mask ^ (1 << q), stack);
+                    nd = block_node(b, q);
+                    next = true;
                     continue;
                 }
                 x0 = s.tile_x + float(nd.i);
@@ -600,7 +666,8 @@ struct Heightfield::Traversal {
             } else {
                 if (!node_overlaps(nd, s, x0, y0)) continue;
                 if (nd.level > 0) {
-                    push_block(children(nd), children(nd).exist, stack);
+                    const NodeBlock b = below(nd);
+                    push_block(b, block_exist(b), stack);
                     continue;
                 }
             }

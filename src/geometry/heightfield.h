@@ -1,9 +1,10 @@
 // The heightfield intersector: a periodic, piecewise-bilinear heightfield in cell space
 // (see heightmap.h) with a min/max height pyramid (maximum mip-maps, Tevs et al. 2008),
 // traversed top-down front-to-back, with an exact ray / bilinear-patch test at the leaves.
-// The pyramid is stored in 2 x 2 blocks (a node's four children's mins, then maxes), and the
-// traversal tests a node's four children at once with SSE, with the same float operations as
-// the scalar node-at-a-time reference (intersect_reference), so both give bitwise the same hits.
+// The pyramid is stored in 4 x 4 blocks (a node's sixteen grandchildren's mins, then maxes), and
+// the traversal steps two levels at a time, testing a node's sixteen grandchildren at once with
+// SSE (a row of four per register), with the same float operations as the scalar
+// node-at-a-time reference (intersect_reference), so both give bitwise the same hits.
 //
 // This is the one heightfield tracer of meso: shell-mapped displacement calls it with the
 // ray mapped into cell space through a tetrahedron, and the prefiltering precomputation
@@ -53,7 +54,7 @@ public:
     /// Any hit with t in (tmin, tmax).
     bool occluded(Vec3 o, Vec3 d, float tmin, float tmax, int64_t offset_x = 0, int64_t offset_y = 0) const;
     /// intersect / occluded with the scalar node-at-a-time traversal: the reference that the
-    /// SIMD traversal (a node's four children tested at once) must match bit for bit. For tests.
+    /// SIMD traversal (a node's grandchildren tested at once) must match bit for bit. For tests.
     bool intersect_reference(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHit &hit, int64_t offset_x = 0,
                              int64_t offset_y = 0) const;
     bool occluded_reference(Vec3 o, Vec3 d, float tmin, float tmax, int64_t offset_x = 0,
@@ -71,15 +72,15 @@ public:
 private:
     struct Level {
         int w = 0, h = 0;  ///< nodes in x and y
-        int qw = 0;        ///< 2 x 2 blocks of nodes in x, (w + 1) / 2
-        /// 8 floats per 2 x 2 block of nodes (the children of one node of the level above):
-        /// the four nodes' min heights, then their four max heights, node (2 qi + a, 2 qj + b)
-        /// at index a + 2 b (nodes past an odd size hold 0). One SSE load gives a node's four
-        /// children's mins, the next their maxes.
-        std::vector<float> quads;
-        const float *quad(int qi, int qj) const { return &quads[(size_t(qj) * qw + size_t(qi)) * 8]; }
-        float min_at(int i, int j) const { return quad(i >> 1, j >> 1)[(i & 1) | (j & 1) << 1]; }
-        float max_at(int i, int j) const { return quad(i >> 1, j >> 1)[4 + ((i & 1) | (j & 1) << 1)]; }
+        int bw = 0;        ///< 4 x 4 blocks of nodes in x, (w + 3) / 4
+        /// 32 floats per 4 x 4 block of nodes (the grandchildren of one node two levels up):
+        /// the sixteen nodes' min heights, then their sixteen max heights, node (4 bi + a,
+        /// 4 bj + b) at index a + 4 b (nodes past the level's size hold 0). A row of the block
+        /// is one SSE load of mins and one of maxes.
+        std::vector<float> blocks;
+        const float *block(int bi, int bj) const { return &blocks[(size_t(bj) * bw + size_t(bi)) * 32]; }
+        float min_at(int i, int j) const { return block(i >> 2, j >> 2)[(i & 3) | (j & 3) << 2]; }
+        float max_at(int i, int j) const { return block(i >> 2, j >> 2)[16 + ((i & 3) | (j & 3) << 2)]; }
     };
     int m_w = 0, m_h = 0;
     float m_min = 0.f, m_max = 0.f;

@@ -101,6 +101,10 @@ void map_to_cell(const Tet &T, const double w[3], double c[3]) {
 /// +1 (-1): the cell-space point (x, y, h) (x, y relative to the integer cell origin ox, oy)
 /// lies above (below) the heightfield by more than `eps`; 0: too close to tell.
 int side_of_surface(const Heightfield &hf, double x, double y, double h, int64_t ox, int64_t oy, double eps) {
+    // Beyond the field's height range (a segment's end on the top or bottom of the shell): no
+    // lookup (the bilinear height lies in [min, max] up to round-off far below eps).
+    if (h > double(hf.max_height()) + eps) return 1;
+    if (h < double(hf.min_height()) - eps) return -1;
     // The field is periodic: the origin reduced to one period keeps x + ox small (a huge
     // tiling would otherwise round the cell coordinate beyond what eps covers).
     if (ox < 0 || ox >= hf.width()) ox %= hf.width();
@@ -146,13 +150,13 @@ void ShellShape::set_one_map(Prism &P, const double tv[6][3]) {
     if (!(std::abs(det) > 1e-6 * scale * scale) || !std::isfinite(det)) return;
     const double e[2][2] = {{(y1 - y2) / det, (x2 - x1) / det}, {(y2 - y0) / det, (x0 - x2) / det}};
     for (int k = 0; k < 2; ++k) {
-        P.bary[k][0] = float(e[k][0]);
-        P.bary[k][1] = float(e[k][1]);
-        P.bary[k][2] = float(-(e[k][0] * x2 + e[k][1] * y2));
+        P.bary[0][k] = float(e[k][0]);
+        P.bary[1][k] = float(e[k][1]);
+        P.bary[2][k] = float(-(e[k][0] * x2 + e[k][1] * y2));
     }
     // lambda_2 = 1 - lambda_0 - lambda_1.
-    P.bary[2][0] = float(-(e[0][0] + e[1][0]));
-    P.bary[2][1] = float(-(e[0][1] + e[1][1]));
+    P.bary[0][2] = float(-(e[0][0] + e[1][0]));
+    P.bary[1][2] = float(-(e[0][1] + e[1][1]));
     P.bary[2][2] = float(1.0 + e[0][0] * x2 + e[0][1] * y2 + e[1][0] * x2 + e[1][1] * y2);
     P.one_map = true;
 }
@@ -328,9 +332,7 @@ bool ShellShape::clip_prism(const Prism &P, Vec3 o, Vec3 d, float &t0, float &t1
     // (in units of the shell's thickness), padded like clip() pads a tetrahedron's. Lanes
     // (lambda_0, lambda_1, lambda_2, above the bottom), then below the top four times.
     const float inv_thick = m_inv_thick;
-    const __m128 bx = _mm_setr_ps(P.bary[0][0], P.bary[1][0], P.bary[2][0], 0.f);
-    const __m128 by = _mm_setr_ps(P.bary[0][1], P.bary[1][1], P.bary[2][1], 0.f);
-    const __m128 bc = _mm_setr_ps(P.bary[0][2], P.bary[1][2], P.bary[2][2], 0.f);
+    const __m128 bx = _mm_loadu_ps(P.bary[0]), by = _mm_loadu_ps(P.bary[1]), bc = _mm_loadu_ps(P.bary[2]);
     const __m128 hz = _mm_setr_ps(0.f, 0.f, 0.f, inv_thick);
     const __m128 n = _mm_add_ps(_mm_add_ps(_mm_mul_ps(bx, _mm_set1_ps(c.x)), _mm_mul_ps(by, _mm_set1_ps(c.y))),
                                 _mm_add_ps(bc, _mm_mul_ps(hz, _mm_set1_ps(c.z - m_hmin))));

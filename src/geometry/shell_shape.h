@@ -90,9 +90,10 @@ private:
         uint8_t same_map = 0;
         /// same_map for all three pairs and a base triangle with an area in cell space: the
         /// prism is clipped once, in cell space through tetrahedron 0's map (clip_prism), as
-        /// the triangle's barycentrics bary (lambda_k = bary[k] . (x, y, 1)) and the height slab.
+        /// the triangle's barycentrics bary and the height slab: lambda_k = bary[0][k] x +
+        /// bary[1][k] y + bary[2][k] (k < 3; lane 3 is 0: one SSE load a row).
         bool one_map = false;
-        float bary[3][3] = {};
+        float bary[3][4] = {};
     };
     static uint8_t shared_maps(const Prism &P, const double wv[6][3], const double tv[6][3]);
     static void set_one_map(Prism &P, const double tv[6][3]);
