@@ -15,8 +15,8 @@
 // transition. A footprint equal to a level's factor selects exactly that level; below the
 // first factor the first level is used alone, above the last the last. Why at most an octave:
 // a level coarser than the footprint is biased (its patches are wider than what the footprint
-// resolves, and the bias grows about as the square of that excess, docs/prefilter.md "Level
-// choice"), and a stochastic choice between levels far apart carries t times the coarse
+// resolves, and the bias grows about as the square of that excess, docs/bench.md "Level choice
+// and bias"), and a stochastic choice between levels far apart carries t times the coarse
 // level's whole bias (with 1, 16 and a footprint of 2.6 texels: 35% of the paths on patches
 // 6 times too wide), far more than a level near the footprint would.
 //
