@@ -75,6 +75,10 @@ def main():
             fails.append(f"footprints {need}: first factor {chain[0]} > twice the smallest footprint")
         if max(scales) < min(need[1], 128):
             fails.append(f"footprints {need}: last factor {max(scales)} below the largest footprint")
+    big = bench.chain_scales({"wrap": "repeat", "map": [2048, 2048]}, {"level": 16, "prefilter": ["-M", "1"]}, (2.2, 2.6))
+    print(f"2048^2 map, footprints (2.2, 2.6): chain {big}")
+    if big[0] != 4:  # x2 would be 1M patches, over MAX_LEVEL_PATCHES
+        fails.append(f"2048^2 map: chain {big} should start at x4 (at most {bench.MAX_LEVEL_PATCHES} patches a level)")
     for f in fails:
         print("FAIL:", f)
     return 1 if fails else 0
