@@ -14,11 +14,11 @@
 // (1, 2, 4, ...), and otherwise level i alone up to half of f_{i+1}, then one octave of
 // transition. A footprint equal to a level's factor selects exactly that level; below the
 // first factor the first level is used alone, above the last the last. Why at most an octave:
-// a level coarser than the footprint is biased (its patches are wider than what the footprint
-// resolves, and the bias grows about as the square of that excess, docs/bench.md "Level choice
-// and bias"), and a stochastic choice between levels far apart carries t times the coarse
-// level's whole bias (with 1, 16 and a footprint of 2.6 texels: 35% of the paths on patches
-// 6 times too wide), far more than a level near the footprint would.
+// a level is biased at the pixel scale, and its squared bias grows faster than its factor
+// (measured: x4, x8, x16 at a fixed footprint ~ 1 : 5 : 12, docs/bench.md "Level choice and
+// bias"), so a stochastic choice between levels far apart, which carries t times the coarse
+// level's whole bias (with 1, 16 and a footprint of 2.6 texels: 35% of the paths on patches 6
+// times too wide), is far more biased than a level near the footprint.
 //
 // The footprint is the camera ray's, which the renderer scales by max(1/8, 1/sqrt(spp)) (the
 // footprint of one sample, render/differentials.h): at 64 spp and more a level of factor F is
