@@ -1,5 +1,6 @@
 // LoD chains: level selection from footprints, stochastic choice, validation.
 #include <gtest/gtest.h>
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include "core/error.h"
@@ -26,26 +27,69 @@ TEST(LodChain, SelectsExactLevelsAtTheirFactors) {
 }
 
 TEST(LodChain, LogLinearBetweenLevels) {
-    LodChain c({1.f, 8.f, 64.f});
-    LodSelection s = c.select(std::sqrt(8.f));
+    // Factors at most 2 apart: log-linear over the whole interval.
+    LodChain c({1.f, 2.f, 4.f, 8.f});
+    LodSelection s = c.select(std::sqrt(2.f));
     EXPECT_EQ(s.lo, 0);
     EXPECT_EQ(s.hi, 1);
     EXPECT_NEAR(s.t, 0.5f, 1e-6f);
-    s = c.select(16.f);
+    s = c.select(3.f);
     EXPECT_EQ(s.lo, 1);
     EXPECT_EQ(s.hi, 2);
-    EXPECT_NEAR(s.t, 1.f / 3.f, 1e-6f);
+    EXPECT_NEAR(s.t, std::log(1.5f) / std::log(2.f), 1e-6f);
     // lod_bias scales the footprint.
-    LodSelection b = c.select(4.f, 2.f), d = c.select(8.f);
+    LodSelection b = c.select(3.f, 2.f), d = c.select(6.f);
     EXPECT_EQ(b.lo, d.lo);
     EXPECT_EQ(b.t, d.t);
-    // Position is continuous and non-decreasing in the footprint.
-    float prev = 0.f;  // position(0.5) = 0: below the first factor
-    for (float w = 0.5f; w < 200.f; w *= 1.01f) {
-        float p = c.position(w);
-        EXPECT_GE(p, prev);
-        EXPECT_LE(p - prev, 0.02f) << w;  // no jumps
-        prev = p;
+}
+
+// Factors more than 2 apart: the coarser level enters only in the octave below its factor
+// (a level much coarser than the footprint is biased; lod.h), never below half its factor.
+TEST(LodChain, TransitionsSpanAtMostTheOctaveBelowALevel) {
+    LodChain c({1.f, 8.f, 64.f});
+    for (float w : {1.5f, std::sqrt(8.f), 3.99f}) {  // below 8 / 2: the original alone
+        LodSelection s = c.select(w);
+        EXPECT_EQ(s.lo, 0) << w;
+        EXPECT_EQ(s.hi, 0) << w;
+        EXPECT_EQ(s.t, 0.f) << w;
+    }
+    LodSelection s = c.select(4.f * std::sqrt(2.f));  // the middle of the octave [4, 8]
+    EXPECT_EQ(s.lo, 0);
+    EXPECT_EQ(s.hi, 1);
+    EXPECT_NEAR(s.t, 0.5f, 1e-5f);
+    EXPECT_EQ(c.select(8.f).lo, 1);
+    EXPECT_EQ(c.select(8.f).t, 0.f);
+    EXPECT_EQ(c.select(31.f).hi, 1);  // below 64 / 2: level 1 alone
+    EXPECT_NEAR(c.select(32.f * std::sqrt(2.f)).t, 0.5f, 1e-5f);
+    EXPECT_EQ(c.select(32.f * std::sqrt(2.f)).hi, 2);
+    // The expected factor never exceeds twice the footprint (the log-linear rule over [1, 8]
+    // gave level 8 a weight of 1/3 at 2 texels).
+    for (float w = 1.f; w < 200.f; w *= 1.03f) {
+        LodSelection q = c.select(w);
+        EXPECT_LE(c.factor(q.lo), w * 1.0001f) << w;
+        if (q.t > 0.f) {
+            EXPECT_LE(c.factor(q.hi), 2.f * w * 1.0001f) << w;
+        }
+    }
+    // Zero, NaN and huge footprints: the first and the last level.
+    EXPECT_EQ(c.select(0.f).hi, 0);
+    EXPECT_EQ(c.select(std::numeric_limits<float>::quiet_NaN()).hi, 0);
+    EXPECT_EQ(c.select(3e38f).lo, 2);
+    EXPECT_EQ(c.select(std::numeric_limits<float>::infinity(), 1e-30f).lo, 2);
+}
+
+TEST(LodChain, PositionIsContinuousAndNonDecreasing) {
+    for (const std::vector<float> &f : {std::vector<float>{1.f, 8.f, 64.f}, std::vector<float>{1.f, 2.f, 4.f, 32.f},
+                                        std::vector<float>{1.f, 1.5f, 2.f, 100.f}}) {
+        LodChain c(f);
+        float prev = 0.f;  // position(0.5) = 0: below the first factor
+        for (float w = 0.5f; w < 400.f; w *= 1.01f) {
+            float p = c.position(w);
+            EXPECT_GE(p, prev) << w;
+            EXPECT_LE(p - prev, std::log(1.01f) / std::log(2.f / 1.5f) + 1e-4f) << w;  // no jumps (the closest factors: 1.5, 2)
+            prev = p;
+        }
+        EXPECT_EQ(prev, float(c.levels() - 1));
     }
 }
 
@@ -128,7 +172,7 @@ TEST(LodAov, FootprintOfAPlaneFacingTheCamera) {
 // white-green (reflectance 1 in one channel), so under a constant environment a pixel's
 // green fraction is the weight of level 1. The footprint of the centre pixel at distance d
 // is 2 d tan(20 deg) / 101 * 128 * max(1/8, 1/sqrt(spp)) texels; distances are chosen for
-// footprints of 1, 2 and 4 texels, where the chain [1, 4] gives t = 0, 0.5 and 1.
+// footprints of 2, 2.83 and 4 texels, where the chain [1, 4] gives t = 0, 0.5 and 1.
 namespace {
 
 std::string lod_plane_scene(double distance, const char *blend, int spp, const char *extra = "") {
@@ -160,8 +204,9 @@ TEST(LodPath, LevelsSwitchAtTheExpectedDistances) {
     const int spp = 256;
     const double texels_per_unit_distance = 2.0 * std::tan(20.0 * 3.14159265358979 / 180.0) / 101.0 * 128.0 / 8.0;  // max(1/8, 1/sqrt(256))
     for (const char *blend : {"blend", "stochastic"}) {
-        for (double w : {1.0, 2.0, 4.0}) {
-            const double d = w / texels_per_unit_distance, t = std::log(w) / std::log(4.0);
+        for (double w : {2.0, 2.0 * std::sqrt(2.0), 4.0}) {
+            // The chain [1, 4]: level 1 enters in the octave [2, 4] (geometry/lod.h).
+            const double d = w / texels_per_unit_distance, t = std::clamp(1.0 + std::log2(w / 4.0), 0.0, 1.0);
             auto s = meso::test::load_json_scene("lod_path.json", lod_plane_scene(d, blend, spp));
             meso::RenderResult r = meso::test::render_scene(*s, spp);
             std::printf("%s: footprint %.0f texels: level-1 weight %.4f (expected %.4f)\n", blend, w, green_fraction(r.image), t);

@@ -44,7 +44,9 @@ LodSelection LodChain::select(float texels, float bias) const {
     i = std::clamp(i, 0, n - 2);
     s.lo = i;
     s.hi = i + 1;
-    s.t = float(std::clamp((lw - m_log[size_t(i)]) / (double(m_log[size_t(i + 1)]) - m_log[size_t(i)]), 0.0, 1.0));
+    // The transition to `hi` spans at most the octave below its factor (see lod.h).
+    const double span = std::min(double(m_log[size_t(i + 1)]) - m_log[size_t(i)], std::log(2.0));
+    s.t = float(std::clamp((lw - m_log[size_t(i + 1)]) / span + 1.0, 0.0, 1.0));
     if (s.t == 0.f) s.hi = s.lo;
     return s;
 }

@@ -7,10 +7,22 @@
 // axis, as MipMap::level_for_footprint (conservative: no aliasing along either axis).
 // `lod_bias` scales the footprint before selection (> 1: coarser levels sooner).
 //
-// Selection is log-linear between neighbouring factors: a footprint of w texels sits at
-// position t = (log w - log f_i) / (log f_{i+1} - log f_i) between levels i and i+1, so a
-// footprint equal to a level's factor selects exactly that level; below the first factor
-// the first level is used alone, above the last the last.
+// Selection is log-linear between neighbouring factors, over at most one octave: a footprint
+// of w texels between levels i and i+1 gives level i+1 the weight
+//     t = clamp(1 + (log w - log f_{i+1}) / min(log f_{i+1} - log f_i, log 2), 0, 1),
+// i.e. t = (log w - log f_i) / (log f_{i+1} - log f_i) when the factors are at most 2 apart
+// (1, 2, 4, ...), and otherwise level i alone up to half of f_{i+1}, then one octave of
+// transition. A footprint equal to a level's factor selects exactly that level; below the
+// first factor the first level is used alone, above the last the last. Why at most an octave:
+// a level is biased at the pixel scale, and its squared bias grows faster than its factor
+// (measured: x4, x8, x16 at a fixed footprint ~ 1 : 5 : 12, docs/bench.md "Level choice and
+// bias"), so a stochastic choice between levels far apart, which carries t times the coarse
+// level's whole bias (with 1, 16 and a footprint of 2.6 texels: 35% of the paths on patches 6
+// times too wide), is far more biased than a level near the footprint.
+//
+// The footprint is the camera ray's, which the renderer scales by max(1/8, 1/sqrt(spp)) (the
+// footprint of one sample, render/differentials.h): at 64 spp and more a level of factor F is
+// chosen where a PIXEL covers about 8 F texels.
 //
 // Blending: (a) trace the path on both levels and blend contributions with (1 - t, t);
 // (b) pick one level per path with probability t of the coarser one (same expectation,
