@@ -1,5 +1,6 @@
 #include "geometry/embree_accel.h"
 #include "core/phase.h"
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <fmt/format.h>
@@ -20,15 +21,22 @@ static RTCDevice new_device() {
     return d;
 }
 
+/// A new scene with the flags and build quality of every meso scene.
+static RTCScene new_scene(RTCDevice device) {
+    RTCScene s = rtcNewScene(device);
+    rtcSetSceneFlags(s, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(s, RTC_BUILD_QUALITY_HIGH);
+    return s;
+}
+
 EmbreeAccel::EmbreeAccel() {
     m_device = new_device();
-    m_scene = rtcNewScene(m_device);
-    rtcSetSceneFlags(m_scene, RTC_SCENE_FLAG_ROBUST);
-    rtcSetSceneBuildQuality(m_scene, RTC_BUILD_QUALITY_HIGH);
+    m_scene = new_scene(m_device);
 }
 
 EmbreeAccel::~EmbreeAccel() {
     if (m_scene) rtcReleaseScene(m_scene);
+    for (LevelScene &l : m_levels) rtcReleaseScene(l.scene);
     if (m_device) rtcReleaseDevice(m_device);
 }
 
@@ -45,34 +53,60 @@ static void alpha_mask_filter(const RTCFilterFunctionNArguments *args) {
     }
 }
 
+/// Commits `g`, attaches it to `scene` and records `shape` under its geomID in `table`.
+static void attach(RTCScene scene, RTCGeometry g, const Shape *shape, std::vector<const Shape *> &table) {
+    rtcCommitGeometry(g);
+    unsigned id = rtcAttachGeometry(scene, g);
+    rtcReleaseGeometry(g);
+    if (id >= table.size()) table.resize(id + 1, nullptr);
+    table[id] = shape;
+}
+
 void EmbreeAccel::add(const Shape *shape) {
     if (shape->alpha_mask && !rtcGetDeviceProperty(m_device, RTC_DEVICE_PROPERTY_FILTER_FUNCTION_SUPPORTED))
         throw MesoError(fmt::format("{}: this Embree build has no filter functions, which alpha masks need",
                                     shape->to_string()));
+    if (shape->lod && !(shape->lod_level >= 0 && shape->lod_level < 32))
+        throw MesoError(fmt::format("{}: LoD level {} outside 0..31", shape->to_string(), shape->lod_level));
     RTCGeometry g = shape->build_embree(m_device);
     if (shape->alpha_mask) {
         rtcSetGeometryUserData(g, const_cast<Shape *>(shape));
         rtcSetGeometryIntersectFilterFunction(g, alpha_mask_filter);
         rtcSetGeometryOccludedFilterFunction(g, alpha_mask_filter);
     }
+    if (!shape->lod) {  // seen by every ray
+        rtcSetGeometryMask(g, 0xFFFFFFFFu);
+        attach(m_scene, g, shape, m_shapes);
+        return;
+    }
     // LoD level k of a chain is seen only by rays with mask bit k, its last level also by
     // rays of every higher level (a path at level 3 still sees a 2-level chain's coarsest
-    // model); other shapes by all rays.
-    uint32_t mask = 0xFFFFFFFFu;
-    if (shape->lod) {
-        const int k = shape->lod_level;
-        mask = k + 1 == shape->lod->chain.levels() ? ~(lod_ray_mask(k) - 1u) : lod_ray_mask(k);
-    }
+    // model). The geometry keeps the mask too: its level scene's instance has the same one.
+    const int k = shape->lod_level;
+    const uint32_t mask = k + 1 == shape->lod->chain.levels() ? ~(lod_ray_mask(k) - 1u) : lod_ray_mask(k);
     rtcSetGeometryMask(g, mask);
-    rtcCommitGeometry(g);
-    unsigned id = rtcAttachGeometry(m_scene, g);
-    rtcReleaseGeometry(g);
-    if (id >= m_shapes.size()) m_shapes.resize(id + 1, nullptr);
-    m_shapes[id] = shape;
+    auto level = std::find_if(m_levels.begin(), m_levels.end(), [&](const LevelScene &l) { return l.mask == mask; });
+    if (level == m_levels.end()) level = m_levels.insert(m_levels.end(), LevelScene{mask, new_scene(m_device), {}});
+    attach(level->scene, g, shape, level->shapes);
 }
 
 double EmbreeAccel::commit() {
     auto t0 = std::chrono::steady_clock::now();
+    // Each level scene becomes one instance of the top scene (identity transform, the level's mask).
+    static const float identity[12] = {1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};  // 3x4 column major
+    for (size_t i = 0; i < m_levels.size(); ++i) {
+        rtcCommitScene(m_levels[i].scene);
+        RTCGeometry inst = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(inst, m_levels[i].scene);
+        rtcSetGeometryTimeStepCount(inst, 1);
+        rtcSetGeometryTransform(inst, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, identity);
+        rtcSetGeometryMask(inst, m_levels[i].mask);
+        rtcCommitGeometry(inst);
+        const unsigned id = rtcAttachGeometry(m_scene, inst);
+        rtcReleaseGeometry(inst);
+        if (id >= m_instance_level.size()) m_instance_level.resize(id + 1, -1);
+        m_instance_level[id] = int(i);
+    }
     rtcCommitScene(m_scene);
     RTCError err = rtcGetDeviceError(m_device);
     if (err != RTC_ERROR_NONE) throw MesoError(fmt::format("Embree failed to build the scene (error {})", int(err)));
@@ -108,11 +142,16 @@ static bool trace_closest(RTCScene scene, const Ray &ray, RTCRayHit &rh) {
     return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
 }
 
+inline const Shape *EmbreeAccel::hit_shape(unsigned inst_id, unsigned geom_id) const {
+    if (inst_id == RTC_INVALID_GEOMETRY_ID) return m_shapes[geom_id];
+    return m_levels[size_t(m_instance_level[inst_id])].shapes[geom_id];
+}
+
 bool EmbreeAccel::intersect(const Ray &ray, SurfaceInteraction &si) const {
     RTCRayHit rh;
     if (!trace_closest(m_scene, ray, rh)) return false;
     PhaseScope phase(Phase::Interaction);
-    m_shapes[rh.hit.geomID]->fill_interaction(ray, rh.ray.tfar, rh.hit.primID, rh.hit.u, rh.hit.v, si);
+    hit_shape(rh.hit.instID[0], rh.hit.geomID)->fill_interaction(ray, rh.ray.tfar, rh.hit.primID, rh.hit.u, rh.hit.v, si);
     return true;
 }
 
