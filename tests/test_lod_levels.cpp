@@ -170,3 +170,31 @@ TEST(LodLevels, AFixedLevelRendersAsTheSceneWithOnlyThatLevel) {
     EXPECT_LT(d0, 1e-6 * noise);
     EXPECT_LT(d_last, 1e-6 * noise);
 }
+
+// The coarsest mask (bit 31, what a path that missed every LoD shape carries) sees the last
+// level of every chain, whatever its length, through the level instances; bit 0 sees level 0.
+TEST(LodLevels, TheCoarsestMaskSeesEveryChainsLastLevel) {
+    auto s = meso::test::load_json_scene("lod_levels_masks.json", R"({
+      "camera": {"type": "perspective", "width": 8, "height": 8},
+      "shapes": [{"type": "rectangle", "to_world": {"translate": [-2, 0, 0]},
+                  "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1},
+                  "lod": {"factors": [1, 2, 4, 8]}},
+                 {"type": "rectangle", "to_world": {"translate": [2, 0, 0]},
+                  "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1},
+                  "lod": {"factors": [1, 2]}},
+                 {"type": "rectangle", "to_world": {"translate": [0, 3, 0]}}]
+    })");
+    struct Case {
+        float x, y;
+        int bit, level;  // level -1: the shape without LoD
+    };
+    for (const Case c : {Case{-2, 0, 31, 3}, Case{2, 0, 31, 1}, Case{-2, 0, 0, 0}, Case{2, 0, 0, 0}, Case{-2, 0, 2, 2},
+                         Case{2, 0, 2, 1}, Case{0, 3, 31, -1}, Case{0, 3, 0, -1}}) {
+        meso::Ray r(meso::Vec3(c.x, c.y + 0.1f, 5.f), meso::Vec3(0, 0, -1));
+        r.mask = meso::lod_ray_mask(c.bit);
+        meso::SurfaceInteraction si;
+        ASSERT_TRUE(s->intersect(r, si)) << c.x << " bit " << c.bit;
+        EXPECT_EQ(si.shape->lod ? si.shape->lod_level : -1, c.level) << c.x << ", " << c.y << " bit " << c.bit;
+        EXPECT_EQ(s->occluded(r), true);
+    }
+}
