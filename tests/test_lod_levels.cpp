@@ -31,55 +31,62 @@ std::string replaced(std::string s, const std::string &from, const std::string &
 // exceed green by the shapes' share. The image must also equal the same scene with the shapes'
 // last levels as plain shapes: these paths draw no extra random numbers, so with the same seed
 // they are the same paths and the images agree far below their noise (seen with another seed).
+//
+// Run twice: with few primitives outside LoD (they go into every level's scene) and with a
+// finely tessellated sphere under the floor (then they are one scene instanced into each).
 TEST(LodLevels, PathsThatMissLodShapesSeeTheCoarsestLevel) {
-    const std::string scene = R"({
-      "camera": {"type": "perspective", "origin": [0, 0, 1], "target": [0, 0.4, 0], "up": [0, 1, 0],
-                 "fov": 40, "width": 24, "height": 24},
-      "integrator": {"type": "path", "max_depth": 3},
-      "sampler": {"type": "independent", "sample_count": 16},
-      "shapes": [
-        {"type": "rectangle", "to_world": {"scale": [10, 10, 1]},
-         "material": {"type": "diffuse", "reflectance": 0.8}},
-        {"type": "rectangle", "to_world": {"scale": [1.1, 3, 1], "rotate": {"axis": [1, 0, 0], "angle": 180}, "translate": [-1.2, 0.5, 1.5]},
-         "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0, "tiling": 2},
-         @A},
-        {"type": "rectangle", "to_world": {"scale": [1.1, 3, 1], "rotate": {"axis": [1, 0, 0], "angle": 180}, "translate": [1.2, 0.5, 1.5]},
-         "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0, "tiling": 2},
-         @B}],
-      "lights": [{"type": "constant", "radiance": 1}]
-    })";
-    const std::string red = R"({"type": "diffuse", "reflectance": [0.9, 0, 0]})",
-                      green = R"({"type": "diffuse", "reflectance": [0, 0.9, 0]})",
-                      blue = R"({"type": "diffuse", "reflectance": [0, 0, 0.9]})";
-    const std::string lod_a = fmt::format(R"("lod": {{"factors": [1, 2, 4], "same_model": true, "materials": [{}, {}, {}]}})",
-                                          red, green, blue),
-                      lod_b = fmt::format(R"("lod": {{"factors": [1, 4], "same_model": true, "materials": [{}, {}]}})", red, blue);
-    auto lod = meso::test::load_json_scene("lod_levels_floor.json",
-                                           replaced(replaced(scene, "@A", lod_a), "@B", lod_b));
-    auto plain = meso::test::load_json_scene(
-        "lod_levels_floor_plain.json",
-        replaced(replaced(scene, "@A", "\"material\": " + blue), "@B", "\"material\": " + blue));
-    const meso::RenderResult l = meso::test::render_scene(*lod, 16, 0, 31), p1 = meso::test::render_scene(*plain, 16, 0, 31),
-                             p2 = meso::test::render_scene(*plain, 16, 0, 32);
-    // Per pixel: |R - G| (zero unless a path saw level 0 or 1) and B - R (the last levels' light).
-    double worst = 0, sum = 0, sum2 = 0;
-    const int n = l.image.width * l.image.height;
-    for (int y = 0; y < l.image.height; ++y)
-        for (int x = 0; x < l.image.width; ++x) {
-            const double r = l.image.at(x, y, 0), g = l.image.at(x, y, 1), b = l.image.at(x, y, 2);
-            worst = std::max(worst, std::abs(r - g) / std::max(1e-6, g));
-            sum += b - r;
-            sum2 += (b - r) * (b - r);
-        }
-    const double blue_excess = sum / n, blue_stderr = std::sqrt(std::max(0.0, sum2 / n - blue_excess * blue_excess) / n);
-    const double noise = meso::compute_metrics(p2.image, p1.image).relmse,
-                 cross = meso::compute_metrics(l.image, p1.image).relmse;
-    std::printf("mean B - R %.4f +- %.4f; worst |R - G| / G %.2g; relMSE plain vs plain %.5f, LoD vs plain %.5f\n",
-                blue_excess, blue_stderr, worst, noise, cross);
-    EXPECT_LT(worst, 1e-5) << "a path that missed every LoD shape saw a level other than the last";
-    EXPECT_GT(blue_excess, 6 * blue_stderr) << "the shapes' last levels must show in the floor";
-    EXPECT_LT(cross, 1e-6 * noise);
-    EXPECT_EQ(l.nan_count, 0);
+    for (const char *extra : {"", R"(, {"type": "uvsphere", "rings": 64, "segments": 64,
+                                        "to_world": {"translate": [0, 0, -5]}})"}) {
+        SCOPED_TRACE(*extra ? "many primitives without LoD" : "few primitives without LoD");
+        const std::string scene = replaced(R"({
+          "camera": {"type": "perspective", "origin": [0, 0, 1], "target": [0, 0.4, 0], "up": [0, 1, 0],
+                     "fov": 40, "width": 24, "height": 24},
+          "integrator": {"type": "path", "max_depth": 3},
+          "sampler": {"type": "independent", "sample_count": 16},
+          "shapes": [
+            {"type": "rectangle", "to_world": {"scale": [10, 10, 1]},
+             "material": {"type": "diffuse", "reflectance": 0.8}},
+            {"type": "rectangle", "to_world": {"scale": [1.1, 3, 1], "rotate": {"axis": [1, 0, 0], "angle": 180}, "translate": [-1.2, 0.5, 1.5]},
+             "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0, "tiling": 2},
+             @A},
+            {"type": "rectangle", "to_world": {"scale": [1.1, 3, 1], "rotate": {"axis": [1, 0, 0], "angle": 180}, "translate": [1.2, 0.5, 1.5]},
+             "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0, "tiling": 2},
+             @B}@EXTRA],
+          "lights": [{"type": "constant", "radiance": 1}]
+        })", "@EXTRA", extra);
+        const std::string red = R"({"type": "diffuse", "reflectance": [0.9, 0, 0]})",
+                          green = R"({"type": "diffuse", "reflectance": [0, 0.9, 0]})",
+                          blue = R"({"type": "diffuse", "reflectance": [0, 0, 0.9]})";
+        const std::string lod_a = fmt::format(R"("lod": {{"factors": [1, 2, 4], "same_model": true, "materials": [{}, {}, {}]}})",
+                                              red, green, blue),
+                          lod_b = fmt::format(R"("lod": {{"factors": [1, 4], "same_model": true, "materials": [{}, {}]}})", red, blue);
+        auto lod = meso::test::load_json_scene("lod_levels_floor.json",
+                                               replaced(replaced(scene, "@A", lod_a), "@B", lod_b));
+        auto plain = meso::test::load_json_scene(
+            "lod_levels_floor_plain.json",
+            replaced(replaced(scene, "@A", "\"material\": " + blue), "@B", "\"material\": " + blue));
+        const meso::RenderResult l = meso::test::render_scene(*lod, 16, 0, 31), p1 = meso::test::render_scene(*plain, 16, 0, 31),
+                                 p2 = meso::test::render_scene(*plain, 16, 0, 32);
+        // Per pixel: |R - G| (zero unless a path saw level 0 or 1) and B - R (the last levels' light).
+        double worst = 0, sum = 0, sum2 = 0;
+        const int n = l.image.width * l.image.height;
+        for (int y = 0; y < l.image.height; ++y)
+            for (int x = 0; x < l.image.width; ++x) {
+                const double r = l.image.at(x, y, 0), g = l.image.at(x, y, 1), b = l.image.at(x, y, 2);
+                worst = std::max(worst, std::abs(r - g) / std::max(1e-6, g));
+                sum += b - r;
+                sum2 += (b - r) * (b - r);
+            }
+        const double blue_excess = sum / n, blue_stderr = std::sqrt(std::max(0.0, sum2 / n - blue_excess * blue_excess) / n);
+        const double noise = meso::compute_metrics(p2.image, p1.image).relmse,
+                     cross = meso::compute_metrics(l.image, p1.image).relmse;
+        std::printf("mean B - R %.4f +- %.4f; worst |R - G| / G %.2g; relMSE plain vs plain %.5f, LoD vs plain %.5f\n",
+                    blue_excess, blue_stderr, worst, noise, cross);
+        EXPECT_LT(worst, 1e-5) << "a path that missed every LoD shape saw a level other than the last";
+        EXPECT_GT(blue_excess, 6 * blue_stderr) << "the shapes' last levels must show in the floor";
+        EXPECT_LT(cross, 1e-6 * noise);
+        EXPECT_EQ(l.nan_count, 0);
+    }
 }
 
 // The footprint rule on a 3-level chain [1, 4, 16] (level colours red, green, blue) seen head-on
@@ -173,28 +180,33 @@ TEST(LodLevels, AFixedLevelRendersAsTheSceneWithOnlyThatLevel) {
 
 // The coarsest mask (bit 31, what a path that missed every LoD shape carries) sees the last
 // level of every chain, whatever its length, through the level instances; bit 0 sees level 0.
+// With few or many (then instanced) primitives outside LoD.
 TEST(LodLevels, TheCoarsestMaskSeesEveryChainsLastLevel) {
-    auto s = meso::test::load_json_scene("lod_levels_masks.json", R"({
-      "camera": {"type": "perspective", "width": 8, "height": 8},
-      "shapes": [{"type": "rectangle", "to_world": {"translate": [-2, 0, 0]},
-                  "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1},
-                  "lod": {"factors": [1, 2, 4, 8]}},
-                 {"type": "rectangle", "to_world": {"translate": [2, 0, 0]},
-                  "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1},
-                  "lod": {"factors": [1, 2]}},
-                 {"type": "rectangle", "to_world": {"translate": [0, 3, 0]}}]
-    })");
-    struct Case {
-        float x, y;
-        int bit, level;  // level -1: the shape without LoD
-    };
-    for (const Case c : {Case{-2, 0, 31, 3}, Case{2, 0, 31, 1}, Case{-2, 0, 0, 0}, Case{2, 0, 0, 0}, Case{-2, 0, 2, 2},
-                         Case{2, 0, 2, 1}, Case{0, 3, 31, -1}, Case{0, 3, 0, -1}}) {
-        meso::Ray r(meso::Vec3(c.x, c.y + 0.1f, 5.f), meso::Vec3(0, 0, -1));
-        r.mask = meso::lod_ray_mask(c.bit);
-        meso::SurfaceInteraction si;
-        ASSERT_TRUE(s->intersect(r, si)) << c.x << " bit " << c.bit;
-        EXPECT_EQ(si.shape->lod ? si.shape->lod_level : -1, c.level) << c.x << ", " << c.y << " bit " << c.bit;
-        EXPECT_EQ(s->occluded(r), true);
+    for (const char *extra : {"", R"(, {"type": "uvsphere", "rings": 64, "segments": 64,
+                                        "to_world": {"translate": [0, -9, 0]}})"}) {
+        SCOPED_TRACE(*extra ? "many primitives without LoD" : "few primitives without LoD");
+        auto s = meso::test::load_json_scene("lod_levels_masks.json", replaced(R"({
+          "camera": {"type": "perspective", "width": 8, "height": 8},
+          "shapes": [{"type": "rectangle", "to_world": {"translate": [-2, 0, 0]},
+                      "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1},
+                      "lod": {"factors": [1, 2, 4, 8]}},
+                     {"type": "rectangle", "to_world": {"translate": [2, 0, 0]},
+                      "displacement": {"map": {"generator": "fbm", "size": 16}, "scale": 0.1},
+                      "lod": {"factors": [1, 2]}},
+                     {"type": "rectangle", "to_world": {"translate": [0, 3, 0]}}@EXTRA]
+        })", "@EXTRA", extra));
+        struct Case {
+            float x, y;
+            int bit, level;  // level -1: the shape without LoD
+        };
+        for (const Case c : {Case{-2, 0, 31, 3}, Case{2, 0, 31, 1}, Case{-2, 0, 0, 0}, Case{2, 0, 0, 0}, Case{-2, 0, 2, 2},
+                             Case{2, 0, 2, 1}, Case{0, 3, 31, -1}, Case{0, 3, 0, -1}}) {
+            meso::Ray r(meso::Vec3(c.x, c.y + 0.1f, 5.f), meso::Vec3(0, 0, -1));
+            r.mask = meso::lod_ray_mask(c.bit);
+            meso::SurfaceInteraction si;
+            ASSERT_TRUE(s->intersect(r, si)) << c.x << " bit " << c.bit;
+            EXPECT_EQ(si.shape->lod ? si.shape->lod_level : -1, c.level) << c.x << ", " << c.y << " bit " << c.bit;
+            EXPECT_EQ(s->occluded(r), true);
+        }
     }
 }
