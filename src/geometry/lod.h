@@ -62,7 +62,7 @@ enum class LodBlend { Stochastic, Blend };
 /// Which level a path sees (integrators/path.cpp, one level per path, used by all its rays,
 /// as paper 004 picks one per pixel). A path's level is an index k into every chain: its rays
 /// carry the Embree mask bit k and see level min(k, last) of each chain (a chain's last level
-/// answers to bits last..31; geometry/embree_accel.cpp).
+/// answers to bits last..31; geometry/embree_accel.h traces each level in its own scene).
 ///   1. The camera ray is traced first with bit 31, i.e. against the coarsest level of every
 ///      chain (the cheapest shells).
 ///   2. If it hits a level of an LoD shape, that shape's group picks the level from the
