@@ -143,7 +143,15 @@ Spectrum PathIntegrator::trace_lod(const Scene &scene, RayDifferential ray, Samp
     // The footprint on the LoD shape picks the level (paper 004 §7.2); the whole path then sees
     // only that level. A level at or beyond every chain's last one sees the same geometry as the
     // coarsest mask: the camera ray's hit is kept; other levels retrace it.
-    first.si.compute_differentials(ray, scene.camera.get());
+    // The footprint is the whole pixel's (geometry/lod.h), as paper 004's per-pixel choice: the
+    // camera's differentials are scaled down for texture filtering under supersampling
+    // (max(1/8, 1/sqrt(spp)), a nominal spp under a time budget), which must not move the
+    // level, or the choice would depend on the sample count and pick levels that still carry
+    // the sub-pixel noise that the pixel's samples cannot average out.
+    RayDifferential pixel = ray;
+    if (pixel.has_differentials && pixel.footprint_scale > 0.f) pixel.scale_differentials(1.f / pixel.footprint_scale);
+    pixel.footprint_scale = 1.f;  // also for the camera approximation, without differentials
+    first.si.compute_differentials(pixel, scene.camera.get());
     const LodGroup &g = *first.si.shape->lod;
     const LodSelection sel = select_path_level(g, first.si.dudx, first.si.dudy, first.si.dvdx, first.si.dvdy);
     auto at_level = [&](int level) {

@@ -127,8 +127,10 @@ TEST(LodAov, FootprintOfAPlaneFacingTheCamera) {
 // plane 2 units wide: 128 texels per unit) faces the camera; level 0 is white-red, level 1
 // white-green (reflectance 1 in one channel), so under a constant environment a pixel's
 // green fraction is the weight of level 1. The footprint of the centre pixel at distance d
-// is 2 d tan(20 deg) / 101 * 128 * max(1/8, 1/sqrt(spp)) texels; distances are chosen for
-// footprints of 1, 2 and 4 texels, where the chain [1, 4] gives t = 0, 0.5 and 1.
+// is 2 d tan(20 deg) / 101 * 128 texels (the whole pixel's, whatever the spp: the camera's
+// max(1/8, 1/sqrt(spp)) scale of the differentials is for texture filtering, not for the
+// level); distances are chosen for footprints of 1, 2 and 4 texels, where the chain [1, 4]
+// gives t = 0, 0.5 and 1.
 namespace {
 
 std::string lod_plane_scene(double distance, const char *blend, int spp, const char *extra = "") {
@@ -158,7 +160,7 @@ double green_fraction(const meso::Image &img) {
 
 TEST(LodPath, LevelsSwitchAtTheExpectedDistances) {
     const int spp = 256;
-    const double texels_per_unit_distance = 2.0 * std::tan(20.0 * 3.14159265358979 / 180.0) / 101.0 * 128.0 / 8.0;  // max(1/8, 1/sqrt(256))
+    const double texels_per_unit_distance = 2.0 * std::tan(20.0 * 3.14159265358979 / 180.0) / 101.0 * 128.0;
     for (const char *blend : {"blend", "stochastic"}) {
         for (double w : {1.0, 2.0, 4.0}) {
             const double d = w / texels_per_unit_distance, t = std::log(w) / std::log(4.0);
