@@ -66,8 +66,10 @@ enum class LodBlend { Stochastic, Blend };
 ///   1. The camera ray is traced first with bit 31, i.e. against the coarsest level of every
 ///      chain (the cheapest shells).
 ///   2. If it hits a level of an LoD shape, that shape's group picks the level from the
-///      footprint at the hit (select_path_level; footprints are measured on the base surface,
-///      so every level gives the same one, up to the level's height at the hit). With
+///      whole pixel's footprint at the hit (select_path_level; not the camera's differentials
+///      scaled by max(1/8, 1/sqrt(spp)) for texture filtering: the level does not depend on
+///      the spp; footprints are measured on the base surface, so every level gives the same
+///      one, up to the level's height at the hit). With
 ///      LodBlend::Stochastic one level is drawn (probability t of `hi`); with LodBlend::Blend
 ///      the path is traced at both `lo` and `hi` and weighted (1 - t, t). A level at or past
 ///      the last level of every chain in the scene sees what bit 31 sees: the camera ray's
