@@ -46,6 +46,10 @@
 
 namespace meso {
 
+/// The mask bit of a path at the coarsest level of every chain: a chain's last level k is
+/// seen by mask bits k..31 (geometry/embree_accel.cpp), so bit 31 sees every chain's last level.
+constexpr int LodCoarsestLevel = 31;
+
 class PathIntegrator final : public Integrator {
 public:
     PathIntegrator(int max_depth, int rr_depth, bool hide_emitters, bool differentials, bool env_quadrature,
@@ -63,10 +67,17 @@ public:
     }
 
 private:
-    /// One path. `level` < 0: the LoD level is chosen from the camera ray's first hit on an
-    /// LoD shape (stochastically, or by tracing both neighbouring levels and blending);
-    /// >= 0: every ray of the path sees that level (geometry/lod.h).
-    Spectrum trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats, int level) const;
+    /// The camera ray's closest hit, when it is already traced with the path's mask.
+    struct FirstHit {
+        bool hit = false;
+        SurfaceInteraction si;
+    };
+    /// One path; every ray of it has `ray.mask` (its LoD level, geometry/lod.h). `first`: the
+    /// camera ray's hit if it is already known (nullptr: trace it).
+    Spectrum trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats,
+                   const FirstHit *first) const;
+    /// A scene with LoD shapes: the level of the path from the camera ray (LodGroup's rule).
+    Spectrum trace_lod(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats) const;
     struct PathState;
     /// Environment radiance along an escaped ray, MIS-weighted against light sampling.
     void add_escaped(const Scene &scene, const RayDifferential &ray, PathState &st) const;
@@ -86,6 +97,9 @@ private:
     bool m_use_differentials = true;  ///< m_differentials and a material of the scene reads them (preprocess)
     bool m_leadr_env_quadrature;
     std::string m_name;
+    /// The largest last level of the scene's LoD chains; -1: no LoD shape (no LoD bookkeeping).
+    /// A path at level >= this sees what a ray with the coarsest mask sees (preprocess).
+    int m_lod_last = -1;
     /// The scene's infinite lights, prefiltered (leadr_env_quadrature only).
     std::vector<std::shared_ptr<const PrefilteredEnvironment>> m_envs;
 };
@@ -94,13 +108,17 @@ void PathIntegrator::preprocess(const Scene &scene) {
     // Differentials only when a material reads the footprint (LoD selection at the camera hit
     // computes its own).
     m_use_differentials = m_differentials && scene.materials_read_footprints;
+    m_lod_last = -1;
+    for (const auto &shape : scene.shapes)
+        if (shape->lod) m_lod_last = std::max(m_lod_last, shape->lod->chain.levels() - 1);
     m_envs.clear();
     if (m_leadr_env_quadrature)
         for (const Light *env : scene.infinite_lights) m_envs.push_back(PrefilteredEnvironment::from_light(*env));
 }
 
 Spectrum PathIntegrator::li(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats) const {
-    return trace(scene, ray, sampler, stats, -1);
+    if (m_lod_last < 0) return trace(scene, ray, sampler, stats, nullptr);  // no LoD shape: plain paths
+    return trace_lod(scene, ray, sampler, stats);
 }
 
 /// The state a path carries from one vertex to the next.
@@ -114,30 +132,52 @@ struct PathIntegrator::PathState {
     bool env_by_quadrature = false; ///< the previous vertex took the environment from its quadrature
 };
 
+Spectrum PathIntegrator::trace_lod(const Scene &scene, RayDifferential ray, Sampler &sampler,
+                                   RenderStats &stats) const {
+    // The camera ray is traced against the coarsest level of every chain (the cheapest shells)
+    // first; the footprint it gives is that of the base surface, the same for every level
+    // (ShellShape: footprints are measured on the h = const plane), up to the level's height
+    // at the hit. A miss or a shape without LoD leaves the path at the coarsest level.
+    ray.mask = lod_ray_mask(LodCoarsestLevel);
+    FirstHit first;
+    ++stats.rays;
+    first.hit = scene.intersect(ray, first.si);
+    if (!first.hit || !first.si.shape->lod) return trace(scene, ray, sampler, stats, &first);
+    // The footprint on the LoD shape picks the level (paper 004 §7.2); the whole path then sees
+    // only that level. A level at or beyond every chain's last one sees the same geometry as the
+    // coarsest mask: the camera ray's hit is kept; other levels retrace it.
+    // The footprint is the camera ray's per-sample one (the pixel's times max(1/8, 1/sqrt(spp)),
+    // as for texture filtering; geometry/lod.h): a level's error is per patch, so a pixel that
+    // averages P patches carries about 1/sqrt(P) of it, and with P growing like spp the level's
+    // bias² falls like the variance instead of leaving a floor.
+    first.si.compute_differentials(ray, scene.camera.get());
+    const LodGroup &g = *first.si.shape->lod;
+    const LodSelection sel = select_path_level(g, first.si.dudx, first.si.dudy, first.si.dvdx, first.si.dvdy);
+    auto at_level = [&](int level) {
+        if (level >= m_lod_last) return trace(scene, ray, sampler, stats, &first);
+        RayDifferential r = ray;
+        r.mask = lod_ray_mask(level);
+        return trace(scene, r, sampler, stats, nullptr);
+    };
+    if (sel.hi != sel.lo && g.blend == LodBlend::Blend)
+        return at_level(sel.lo) * (1.f - sel.t) + at_level(sel.hi) * sel.t;
+    int chosen = sel.lo;
+    if (sel.hi != sel.lo) chosen = sampler.get_1d() < sel.t ? sel.hi : sel.lo;
+    return at_level(chosen);
+}
+
 Spectrum PathIntegrator::trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats,
-                               int level) const {
-    if (level >= 0) ray.mask = lod_ray_mask(level);
+                               const FirstHit *first) const {
     PathState st;
     for (int depth = 0;; ++depth) {
         SurfaceInteraction si;
-        ++stats.rays;
-        bool hit = scene.intersect(ray, si);
-        if (depth == 0 && level < 0 && hit && si.shape->lod) {
-            // LoD: the footprint of the camera ray on the original surface picks the level
-            // (paper 004 §7.2); the whole path then sees only that level.
-            si.compute_differentials(ray, scene.camera.get());
-            const LodSelection sel = select_path_level(*si.shape->lod, si.dudx, si.dudy, si.dvdx, si.dvdy);
-            if (sel.hi != sel.lo && si.shape->lod->blend == LodBlend::Blend)
-                return trace(scene, ray, sampler, stats, sel.lo) * (1.f - sel.t) +
-                       trace(scene, ray, sampler, stats, sel.hi) * sel.t;
-            int chosen = sel.lo;
-            if (sel.hi != sel.lo) chosen = sampler.get_1d() < sel.t ? sel.hi : sel.lo;
-            if (chosen != 0) {
-                ray.mask = lod_ray_mask(chosen);
-                si = SurfaceInteraction();
-                ++stats.rays;
-                hit = scene.intersect(ray, si);
-            }
+        bool hit;
+        if (depth == 0 && first) {
+            hit = first->hit;
+            if (hit) si = first->si;
+        } else {
+            ++stats.rays;
+            hit = scene.intersect(ray, si);
         }
         const bool count_emission = !(depth == 0 && m_hide_emitters);
         if (!hit) {

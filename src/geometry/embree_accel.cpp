@@ -1,5 +1,6 @@
 #include "geometry/embree_accel.h"
 #include "core/phase.h"
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <fmt/format.h>
@@ -20,15 +21,20 @@ static RTCDevice new_device() {
     return d;
 }
 
-EmbreeAccel::EmbreeAccel() {
-    m_device = new_device();
-    m_scene = rtcNewScene(m_device);
-    rtcSetSceneFlags(m_scene, RTC_SCENE_FLAG_ROBUST);
-    rtcSetSceneBuildQuality(m_scene, RTC_BUILD_QUALITY_HIGH);
+/// A new scene with the flags and build quality of every meso scene.
+static RTCScene new_scene(RTCDevice device) {
+    RTCScene s = rtcNewScene(device);
+    rtcSetSceneFlags(s, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(s, RTC_BUILD_QUALITY_HIGH);
+    return s;
 }
 
+EmbreeAccel::EmbreeAccel() { m_device = new_device(); }
+
 EmbreeAccel::~EmbreeAccel() {
-    if (m_scene) rtcReleaseScene(m_scene);
+    for (auto &[shape, g] : m_pending) rtcReleaseGeometry(g);
+    for (RTCScene s : m_scenes) rtcReleaseScene(s);
+    if (m_shared) rtcReleaseScene(m_shared);
     if (m_device) rtcReleaseDevice(m_device);
 }
 
@@ -45,19 +51,28 @@ static void alpha_mask_filter(const RTCFilterFunctionNArguments *args) {
     }
 }
 
+/// Attaches `g` to `scene` and records `shape` under its geomID in `table`.
+static void attach(RTCScene scene, RTCGeometry g, const Shape *shape, std::vector<const Shape *> &table) {
+    const unsigned id = rtcAttachGeometry(scene, g);
+    if (id >= table.size()) table.resize(id + 1, nullptr);
+    table[id] = shape;
+}
+
 void EmbreeAccel::add(const Shape *shape) {
     if (shape->alpha_mask && !rtcGetDeviceProperty(m_device, RTC_DEVICE_PROPERTY_FILTER_FUNCTION_SUPPORTED))
         throw MesoError(fmt::format("{}: this Embree build has no filter functions, which alpha masks need",
                                     shape->to_string()));
+    if (shape->lod && !(shape->lod_level >= 0 && shape->lod_level < shape->lod->chain.levels() && shape->lod_level < 32))
+        throw MesoError(fmt::format("{}: LoD level {} outside its chain (at most 32 levels)", shape->to_string(),
+                                    shape->lod_level));
     RTCGeometry g = shape->build_embree(m_device);
     if (shape->alpha_mask) {
         rtcSetGeometryUserData(g, const_cast<Shape *>(shape));
         rtcSetGeometryIntersectFilterFunction(g, alpha_mask_filter);
         rtcSetGeometryOccludedFilterFunction(g, alpha_mask_filter);
     }
-    // LoD level k of a chain is seen only by rays with mask bit k, its last level also by
-    // rays of every higher level (a path at level 3 still sees a 2-level chain's coarsest
-    // model); other shapes by all rays.
+    // Level k of a chain answers to mask bit k, its last level to bits k..31 (a path at level 3
+    // still sees a 2-level chain's coarsest model); other shapes to every bit.
     uint32_t mask = 0xFFFFFFFFu;
     if (shape->lod) {
         const int k = shape->lod_level;
@@ -65,15 +80,54 @@ void EmbreeAccel::add(const Shape *shape) {
     }
     rtcSetGeometryMask(g, mask);
     rtcCommitGeometry(g);
-    unsigned id = rtcAttachGeometry(m_scene, g);
-    rtcReleaseGeometry(g);
-    if (id >= m_shapes.size()) m_shapes.resize(id + 1, nullptr);
-    m_shapes[id] = shape;
+    m_pending.emplace_back(shape, g);
+}
+
+void EmbreeAccel::build_level_scenes(int levels) {
+    size_t lod_prims = 0, other_prims = 0;
+    for (const auto &[shape, g] : m_pending) (shape->lod ? lod_prims : other_prims) += shape->primitive_count();
+    // Shapes without LoD in every level scene, or (when they outnumber the levels) instanced.
+    RTCGeometry shared = nullptr;
+    if (other_prims > lod_prims) {
+        m_shared = new_scene(m_device);
+        for (const auto &[shape, g] : m_pending)
+            if (!shape->lod) attach(m_shared, g, shape, m_shared_shapes);
+        rtcCommitScene(m_shared);
+        static const float identity[12] = {1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};  // 3x4 column major
+        shared = rtcNewGeometry(m_device, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(shared, m_shared);
+        rtcSetGeometryTimeStepCount(shared, 1);
+        rtcSetGeometryTransform(shared, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, identity);
+        rtcCommitGeometry(shared);
+    }
+    for (int k = 0; k < levels; ++k) {
+        RTCScene scene = m_scenes.emplace_back(new_scene(m_device));
+        ShapeTable &table = m_shapes.emplace_back();
+        for (const auto &[shape, g] : m_pending) {
+            const bool seen = shape->lod ? std::min(k, shape->lod->chain.levels() - 1) == shape->lod_level : !shared;
+            if (seen) attach(scene, g, shape, table);
+        }
+        if (shared) attach(scene, shared, nullptr, table);
+        rtcCommitScene(scene);
+    }
+    if (shared) rtcReleaseGeometry(shared);
 }
 
 double EmbreeAccel::commit() {
     auto t0 = std::chrono::steady_clock::now();
-    rtcCommitScene(m_scene);
+    int levels = 0;  // the longest chain
+    for (const auto &[shape, g] : m_pending)
+        if (shape->lod) levels = std::max(levels, shape->lod->chain.levels());
+    if (levels == 0) {  // no LoD: one scene, as if there were no levels at all
+        RTCScene scene = m_scenes.emplace_back(new_scene(m_device));
+        ShapeTable &table = m_shapes.emplace_back();
+        for (const auto &[shape, g] : m_pending) attach(scene, g, shape, table);
+        rtcCommitScene(scene);
+    } else {
+        build_level_scenes(levels);
+    }
+    for (auto &[shape, g] : m_pending) rtcReleaseGeometry(g);  // the scenes hold them
+    m_pending.clear();
     RTCError err = rtcGetDeviceError(m_device);
     if (err != RTC_ERROR_NONE) throw MesoError(fmt::format("Embree failed to build the scene (error {})", int(err)));
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -108,17 +162,33 @@ static bool trace_closest(RTCScene scene, const Ray &ray, RTCRayHit &rh) {
     return rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
 }
 
+inline RTCScene EmbreeAccel::scene_for(uint32_t mask, const ShapeTable *&shapes) const {
+    // The lowest set bit is the ray's level; past the longest chain, its last level. (A mask
+    // of 0 sees nothing in Embree, whatever the scene.)
+    size_t k = mask ? size_t(__builtin_ctz(mask)) : 0;
+    if (k >= m_scenes.size()) k = m_scenes.size() - 1;
+    shapes = &m_shapes[k];
+    return m_scenes[k];
+}
+
+inline const Shape *EmbreeAccel::hit_shape(const ShapeTable &shapes, unsigned inst_id, unsigned geom_id) const {
+    return inst_id == RTC_INVALID_GEOMETRY_ID ? shapes[geom_id] : m_shared_shapes[geom_id];
+}
+
 bool EmbreeAccel::intersect(const Ray &ray, SurfaceInteraction &si) const {
     RTCRayHit rh;
-    if (!trace_closest(m_scene, ray, rh)) return false;
+    const ShapeTable *shapes;
+    if (!trace_closest(scene_for(ray.mask, shapes), ray, rh)) return false;
     PhaseScope phase(Phase::Interaction);
-    m_shapes[rh.hit.geomID]->fill_interaction(ray, rh.ray.tfar, rh.hit.primID, rh.hit.u, rh.hit.v, si);
+    hit_shape(*shapes, rh.hit.instID[0], rh.hit.geomID)
+        ->fill_interaction(ray, rh.ray.tfar, rh.hit.primID, rh.hit.u, rh.hit.v, si);
     return true;
 }
 
 float EmbreeAccel::intersect_t(const Ray &ray) const {
     RTCRayHit rh;
-    return trace_closest(m_scene, ray, rh) ? rh.ray.tfar : Infinity;
+    const ShapeTable *shapes;
+    return trace_closest(scene_for(ray.mask, shapes), ray, rh) ? rh.ray.tfar : Infinity;
 }
 
 bool EmbreeAccel::occluded(const Ray &ray) const {
@@ -126,16 +196,23 @@ bool EmbreeAccel::occluded(const Ray &ray) const {
     rtcInitIntersectContext(&ctx);
     RTCRay r;
     setup_ray(ray, r);
+    const ShapeTable *shapes;
+    RTCScene scene = scene_for(ray.mask, shapes);
     PhaseScope phase(Phase::Trace);
-    rtcOccluded1(m_scene, &ctx, &r);
+    rtcOccluded1(scene, &ctx, &r);
     return r.tfar < 0.f;  // Embree sets tfar = -inf on a hit
 }
 
 void EmbreeAccel::bounds(Vec3 &lo, Vec3 &hi) const {
-    RTCBounds b;
-    rtcGetSceneBounds(m_scene, &b);
-    lo = Vec3(b.lower_x, b.lower_y, b.lower_z);
-    hi = Vec3(b.upper_x, b.upper_y, b.upper_z);
+    // The union over the level scenes (coarser levels may reach where the original does not).
+    lo = Vec3(Infinity, Infinity, Infinity);
+    hi = -lo;
+    for (RTCScene scene : m_scenes) {
+        RTCBounds b;
+        rtcGetSceneBounds(scene, &b);
+        lo = Vec3(std::min(lo.x, b.lower_x), std::min(lo.y, b.lower_y), std::min(lo.z, b.lower_z));
+        hi = Vec3(std::max(hi.x, b.upper_x), std::max(hi.y, b.upper_y), std::max(hi.z, b.upper_z));
+    }
 }
 
 std::string EmbreeAccel::version_string() {

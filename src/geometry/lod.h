@@ -70,9 +70,30 @@ enum class LodBlend { Stochastic, Blend };
 /// The levels of one LoD shape (each level is its own Shape with `lod` pointing here and
 /// `lod_level` = its index): the chain, the bias, how levels are combined, and the texel
 /// grid of level 0 (the original map, tiling included) that footprints are measured in.
-/// The path tracer picks the level from the camera ray's first hit (one level per path,
-/// used by all its rays, as paper 004 picks one per pixel); paths whose camera ray does not
-/// hit an LoD shape see level 0.
+///
+/// Which level a path sees (integrators/path.cpp, one level per path, used by all its rays,
+/// as paper 004 picks one per pixel). A path's level is an index k into every chain: its rays
+/// carry the Embree mask bit k and see level min(k, last) of each chain (a chain's last level
+/// answers to bits last..31; geometry/embree_accel.h traces each level in its own scene).
+///   1. The camera ray is traced first with bit 31, i.e. against the coarsest level of every
+///      chain (the cheapest shells).
+///   2. If it hits a level of an LoD shape, that shape's group picks the level from the
+///      camera ray's per-sample footprint at the hit (select_path_level: the pixel's times
+///      max(1/8, 1/sqrt(spp)), as texture filtering uses, so that a level's per-patch error,
+///      averaged over about (footprint / factor)² patches a pixel, falls like the variance;
+///      footprints are measured on the base surface, so every level gives the same one, up to
+///      the level's height at the hit). With
+///      LodBlend::Stochastic one level is drawn (probability t of `hi`); with LodBlend::Blend
+///      the path is traced at both `lo` and `hi` and weighted (1 - t, t). A level at or past
+///      the last level of every chain in the scene sees what bit 31 sees: the camera ray's
+///      hit is kept; any finer level retraces the camera ray with its own bit (it may then
+///      hit another surface, e.g. a finer level that stands out in front of the coarsest).
+///   3. If it misses or hits a shape without LoD, the path keeps bit 31: every chain is seen
+///      at its coarsest level. Such a path (a floor's or a wall's interreflections, a mirror's
+///      reflection) has no footprint on the LoD shape; the coarsest level is the one whose
+///      prefiltered material carries the least sub-pixel noise and costs least to trace.
+/// With several chains, index k means a different factor in each; the chain that the camera
+/// ray hits decides k. Scenes without LoD shapes do none of this.
 struct LodGroup {
     LodChain chain;
     float bias = 1.f;
