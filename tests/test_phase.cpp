@@ -40,24 +40,27 @@ TEST(Phase, ScopesNestAndRestore) {
     EXPECT_EQ(seen, Phase::Other);
 }
 
-// 300 ms of CPU in Light, then 100 ms in Other: at 1 kHz about 300 and 100 samples. The bounds
-// allow for the timer's granularity and for other work on the machine (SIGPROF counts this
-// process's CPU time only, so a loaded machine gives fewer samples, not other phases).
+// 600 ms of CPU in Light, then 200 ms in Other. The profiling timer fires at most once per
+// kernel tick (100-1000 Hz: CONFIG_HZ), so 80 to 800 samples; the bounds are 4 binomial standard
+// errors of the shares at the count seen, plus 0.03 for the ticks split at the phase change
+// and the spin loops' own set-up. SIGPROF counts this
+// process's CPU time only, so a loaded machine gives fewer samples, not other phases.
 TEST(Phase, SamplerAttributesCpuTimeToThePhase) {
     PhaseSampler ps;
     ps.start(1000);
     {
         PhaseScope light(Phase::Light);
-        spin(300);
+        spin(600);
     }
-    spin(100);
+    spin(200);
     ps.stop();
     const auto c = ps.counts();
     const double n = double(ps.total());
-    ASSERT_GT(n, 100.0);
+    ASSERT_GE(n, 50.0);
     const double light = double(c[size_t(Phase::Light)]) / n, other = double(c[size_t(Phase::Other)]) / n;
-    EXPECT_NEAR(light, 0.75, 0.12) << n << " samples";
-    EXPECT_NEAR(other, 0.25, 0.12) << n << " samples";
+    const double tol = 4.0 * std::sqrt(0.75 * 0.25 / n) + 0.03;
+    EXPECT_NEAR(light, 0.75, tol) << n << " samples";
+    EXPECT_NEAR(other, 0.25, tol) << n << " samples";
     EXPECT_EQ(c[size_t(Phase::Trace)] + c[size_t(Phase::Bsdf)] + c[size_t(Phase::Camera)], 0u);
     // One sampler at a time.
     ps.start(1000);
