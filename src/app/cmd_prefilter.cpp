@@ -151,10 +151,10 @@ SubcommandRegistrar reg_prefilter{
              ->capture_default_str()
              ->check(CLI::Range(0, 1 << 20));
          app.add_option("--directions", o->jitter_directions,
-                        "where a line's wo and wi sit in their S bins: centres (the points S's lookup interpolates "
-                        "between) or jitter (uniform in the bin: the bin's average)")
+                        "where a line's wo and wi sit in their S bins: jitter (uniform in the bin: the bin's average) "
+                        "or centres (the points S's lookup interpolates between; can spike where f'_low vanishes)")
              ->transform(CLI::CheckedTransformer(std::map<std::string, bool>{{"centres", false}, {"jitter", true}}))
-             ->default_str("centres");
+             ->default_str("jitter");
          app.add_option("--target-error", o->target_error,
                         "rounds until the median relative std. error of every S table is below this, tracing only the wo bins "
                         "above it after the first round (0: one round)")->capture_default_str();

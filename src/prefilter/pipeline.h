@@ -39,7 +39,7 @@ struct PipelineOptions {
     int samples_per_cell = 2;  ///< --ndf-samples
     bool interreflections = true;  ///< --interreflections on: also T_ir, S_ir
     int paths = 64, low_paths = 64, low_nodes = 4;  ///< --paths, --low-paths, --low-nodes
-    bool jitter_directions = false;  ///< --directions jitter (true) or centres (scaling.h, "Directions")
+    bool jitter_directions = true;  ///< --directions jitter (true, default) or centres (scaling.h, "Directions")
     int cv_lines = 0;  ///< --cv-lines: the control variate's cheap lines (scaling.h, "Control variate")
     double target_error = 0;   ///< --target-error (0: one round)
     int max_rounds = 8;        ///< --max-rounds
