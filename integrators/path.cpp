@@ -70,6 +70,7 @@ private:
     /// The camera ray's closest hit, when it is already traced with the path's mask.
     struct FirstHit {
         bool hit = false;
+        bool differentials = false;  ///< si's footprint is already computed from the ray
         SurfaceInteraction si;
     };
     /// One path; every ray of it has `ray.mask` (its LoD level, geometry/lod.h). `first`: the
@@ -130,6 +131,7 @@ struct PathIntegrator::PathState {
     LightSampleContext prev_ctx;    ///< where that sample was taken (for the light pdf of MIS)
     float eta_scale = 1.f;          ///< product of eta^2 over refractions (removed from roulette)
     bool env_by_quadrature = false; ///< the previous vertex took the environment from its quadrature
+    bool si_differentials = false;  ///< the current hit's footprint is already computed (trace_lod)
 };
 
 Spectrum PathIntegrator::trace_lod(const Scene &scene, RayDifferential ray, Sampler &sampler,
@@ -151,6 +153,7 @@ Spectrum PathIntegrator::trace_lod(const Scene &scene, RayDifferential ray, Samp
     // averages P patches carries about 1/sqrt(P) of it, and with P growing like spp the level's
     // bias² falls like the variance instead of leaving a floor.
     first.si.compute_differentials(ray, scene.camera.get());
+    first.differentials = true;
     const LodGroup &g = *first.si.shape->lod;
     const LodSelection sel = select_path_level(g, first.si.dudx, first.si.dudy, first.si.dvdx, first.si.dvdy);
     auto at_level = [&](int level) {
@@ -175,6 +178,7 @@ Spectrum PathIntegrator::trace(const Scene &scene, RayDifferential ray, Sampler 
         if (depth == 0 && first) {
             hit = first->hit;
             if (hit) si = first->si;
+            st.si_differentials = first->differentials;
         } else {
             ++stats.rays;
             hit = scene.intersect(ray, si);
@@ -232,7 +236,8 @@ bool PathIntegrator::scatter(const Scene &scene, RayDifferential &ray, SurfaceIn
     // Footprint at every bounce (exact transport after delta lobes, the camera-based
     // approximation after rough ones: render/differentials.h).
     std::optional<PhaseScope> phase(std::in_place, Phase::Interaction);
-    if (m_use_differentials) si.compute_differentials(ray, scene.camera.get());
+    if (m_use_differentials && !st.si_differentials) si.compute_differentials(ray, scene.camera.get());
+    st.si_differentials = false;
     ShadingContext ctx = si.shading_context(two_sided);
     phase.reset();
     const Vec3 wo = ctx.frame.to_local(si.wo);
