@@ -48,7 +48,8 @@
 // Flow form. A model made with `meso prefilter --flow lobes` (manifest parameters.flow) shades with
 // the closed-form f'_low of prefilter/lobe_brdf.h, the one its T and S were fitted to: one
 // base-like lobe per vMF lobe (roughness widened to α'² = α² + 2/κ; a diffuse base convolved
-// in closed form), deterministic, exact pdf; "estimator" has no effect there (there are no nodes
+// in closed form, its reflectance averaged over each patch where the manifest says parameters.albedo
+// = "patch_mean"), deterministic, exact pdf; "estimator" has no effect there (there are no nodes
 // to pick: every estimator is the closed form). The optional "flow" parameter states the form a
 // scene expects and is refused when the model was made with another.
 //

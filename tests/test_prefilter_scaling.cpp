@@ -373,6 +373,9 @@ void white_furnace(const std::string &flow) {
                             R"({"type": "diffuse", "reflectance": 1})", "--scales", "8", "-M", "1", "-N", "15", "--paths",
                             "256", "--low-paths", "256", "--seed", "3", "--flow", flow});
     PrefilteredModel m = PrefilteredModel::load(dir);
+    // The model says its lobes form averages a diffuse base's reflectance over each patch.
+    EXPECT_EQ(m.manifest["parameters"].value("albedo", std::string()), "patch_mean");
+    EXPECT_FALSE(m.quadrature.point_albedo);
     const PrefilteredLevel &L = m.levels[0];
     const Heightfield low(L.h_low, float(L.width()), 0.f);
     std::map<std::string, std::string> p{{"size", "64"}, {"amplitude", "0.06"}, {"seed", "2"}};

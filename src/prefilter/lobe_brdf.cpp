@@ -5,10 +5,12 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include <smmintrin.h>
+#include <tbb/parallel_for.h>
 #include "core/error.h"
 #include "core/frame.h"
 #include "core/properties.h"
 #include "filter/vmf.h"
+#include "sampling/rng.h"
 
 namespace meso::prefilter {
 
@@ -182,6 +184,35 @@ void check_microfacet_base(const LobeBase &lb, const MicrofacetDistribution &d, 
                                                 where, lb.material->to_string()));
         }
 }
+
+/// The Lambertian base's ρ/π (its eval at normal incidence) averaged over each patch of a w x h
+/// grid of the tile (patch (i, j) = [i/w, (i+1)/w) x [j/h, (j+1)/h) in uv): jittered-stratified
+/// points, kAlbedoStrataPerTile per tile axis (at least one per patch), a fixed seed per patch
+/// (deterministic whatever the thread schedule). Exact for a nearest-filtered texture of up to
+/// kAlbedoStrataPerTile texels aligned with the grid (a stratum lies inside one texel); finer
+/// or unaligned textures get an unbiased estimate of the mean.
+std::vector<Spectrum> patch_mean_lambert(const Material &base, int w, int h) {
+    const int nu = std::max(1, (kAlbedoStrataPerTile + w - 1) / w), nv = std::max(1, (kAlbedoStrataPerTile + h - 1) / h);
+    std::vector<Spectrum> out(size_t(w) * size_t(h));
+    const Vec3 z(0.f, 0.f, 1.f);
+    tbb::parallel_for(size_t(0), out.size(), [&](size_t k) {
+        const int i = int(k % size_t(w)), j = int(k / size_t(w));
+        PCG32 rng(k, 0x6a09e667f3bcc909ULL);
+        double acc[3] = {0.0, 0.0, 0.0};
+        ShadingContext ctx;
+        for (int b = 0; b < nv; ++b)
+            for (int a = 0; a < nu; ++a) {
+                const double u = (double(i) + (a + double(rng.next_float())) / nu) / w;
+                const double v = (double(j) + (b + double(rng.next_float())) / nv) / h;
+                ctx.uv = Vec2(float(std::min(u, 0x1.fffffep-1)), float(std::min(v, 0x1.fffffep-1)));
+                const Spectrum e = base.eval(ctx, z, z);
+                for (int q = 0; q < 3; ++q) acc[q] += double(e[q]);
+            }
+        const double inv = 1.0 / (double(nu) * nv);
+        out[k] = Spectrum(float(acc[0] * inv), float(acc[1] * inv), float(acc[2] * inv));
+    });
+    return out;
+}
 }  // namespace
 
 double widened_alpha(double alpha, double kappa) {
@@ -231,7 +262,7 @@ LobeBase make_lobe_base(std::shared_ptr<const Material> material, const nlohmann
 
 // ---------------------------------------------------------------------------------------
 
-SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height)
+SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo)
     : m_base(std::move(base)), m_w(width), m_h(height) {
     if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
         throw MesoError(fmt::format("lobes f'_low: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
@@ -265,6 +296,8 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
         }
     }
     m_first.push_back(uint32_t(m_lobes.size()));
+    if (m_base.kind == LobeBase::Kind::Lambertian && patch_mean_albedo)
+        m_albedo = patch_mean_lambert(*m_base.material, m_w, m_h);
     // The same lobes by component, four per block.
     m_first_block.reserve(m_first.size());
     for (size_t k = 0; k + 1 < m_first.size(); ++k) {
@@ -293,7 +326,8 @@ std::pair<const SvLobeBrdf::Lobe *, const SvLobeBrdf::Lobe *> SvLobeBrdf::lobes(
     return {base + m_first[k], base + m_first[k + 1]};
 }
 
-Spectrum SvLobeBrdf::lambert(const ShadingContext &ctx) const {
+Spectrum SvLobeBrdf::lambert(const ShadingContext &ctx, size_t patch) const {
+    if (!m_albedo.empty()) return m_albedo[patch];
     const Vec3 z(0.f, 0.f, 1.f);
     return m_base.material->eval(ctx, z, z);
 }
@@ -346,9 +380,10 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
     return m_base.fresnel_at(dot(wi, h)) * s;
 }
 
-Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, const Lobe *e, const Vec3 &wo,
-                                      const Vec3 &wi, float *pdf) const {
+Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
+                                      float *pdf) const {
     const VmfTables &tab = vmf_tables();
+    const Lobe *b = m_lobes.data() + m_first[patch], *e = m_lobes.data() + m_first[patch + 1];
     float sum = 0.f, psum = 0.f, ptot = 0.f;
     for (const Lobe *l = b; l != e; ++l) {
         const float v = l->c * std::min(1.f, VmfTables::lookup(tab.H, dot(l->mu, wo), l->krow) / l->hz);
@@ -361,15 +396,14 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, const Lobe *b, 
     }
     if (pdf) *pdf = ptot > 0.f ? psum / ptot : 0.f;
     if (!(sum > 0.f)) return Spectrum(0.f);
-    return lambert(ctx) * sum;
+    return lambert(ctx, patch) * sum;
 }
 
 Spectrum SvLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
     if (pdf) *pdf = 0.f;
     if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
     if (m_base.kind == LobeBase::Kind::Microfacet) return eval_pdf_microfacet(patch_index(ctx.uv), wo, wi, pdf);
-    const auto [b, e] = lobes(ctx.uv);
-    return eval_pdf_lambert(ctx, b, e, wo, wi, pdf);
+    return eval_pdf_lambert(ctx, patch_index(ctx.uv), wo, wi, pdf);
 }
 
 float SvLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
@@ -442,7 +476,7 @@ uint32_t SvLobeBrdf::flags() const {
 }
 
 Spectrum SvLobeBrdf::albedo_hint(const ShadingContext &ctx) const {
-    return m_base.kind == LobeBase::Kind::Microfacet ? m_base.fresnel_at(1.f) : lambert(ctx) * kPiF;
+    return m_base.kind == LobeBase::Kind::Microfacet ? m_base.fresnel_at(1.f) : lambert(ctx, patch_index(ctx.uv)) * kPiF;
 }
 
 std::string SvLobeBrdf::to_string() const {

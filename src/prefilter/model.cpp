@@ -207,6 +207,13 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
                                     where, flow));
     m.quadrature.lobes = flow == "lobes";
     m.quadrature.projected_area = flow == "visible";
+    // parameters.albedo (absent in models made before the lobes form averaged a diffuse base's
+    // reflectance over the patch: their tables were fitted to the value at the point).
+    const std::string albedo = par.value("albedo", std::string("point"));
+    if (albedo != "point" && albedo != "patch_mean")
+        throw MesoError(fmt::format("{}: parameters.albedo: expected \"patch_mean\" or \"point\", got \"{}\"", where,
+                                    albedo));
+    m.quadrature.point_albedo = albedo == "point";
     if (m.map_width < 1 || m.map_height < 1 || !(m.tile_size > 0) || m.lobes < 1 || m.lobes > 64)
         throw MesoError(fmt::format("{}: invalid map size, tile_size or lobes", where));
     for (const auto &lj : need(j, "levels", where)) {
@@ -319,7 +326,8 @@ SvMultiLobe::SvMultiLobe(std::shared_ptr<const Material> base, const std::vector
     if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
         throw MesoError(fmt::format("multi-lobe SVBRDF: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
     if (q.lobes) {
-        m_lobe_form = std::make_unique<SvLobeBrdf>(make_lobe_base(m_base, base_json, base_where), ndf, width, height);
+        m_lobe_form = std::make_unique<SvLobeBrdf>(make_lobe_base(m_base, base_json, base_where), ndf, width, height,
+                                                   !q.point_albedo);
         return;
     }
     m_patches.resize(ndf.size());

@@ -144,6 +144,10 @@ struct QuadratureOptions {
     /// --flow lobes: f'_low is the closed-form per-lobe BRDF of prefilter/lobe_brdf.h (one widened
     /// base lobe per vMF lobe) instead of this quadrature (polar, azimuth and projected_area unused).
     bool lobes = false;
+    /// --flow lobes with a Lambertian base: its reflectance at the shading point instead of the
+    /// patch mean (lobe_brdf.h) — how models made before the patch mean were fitted (their
+    /// manifest has no parameters.albedo); they keep shading the way their tables expect.
+    bool point_albedo = false;
 };
 
 /// One node of the quadrature of D: micro-normal ω_k (its frame) and weight c_k.
