@@ -31,9 +31,9 @@
 namespace meso::prefilter {
 
 struct LevelErrorOptions {
-    int cells = 64;        ///< coarse cells sampled (uniformly, without repetition when possible)
+    int cells = 64;        ///< windows sampled per window size (every one when there are at most this many)
     int directions = 8;    ///< direction pairs (fixed, spread over the hemisphere)
-    int lines = 64;        ///< lines of sight per cell and direction pair, on each surface
+    int lines = 256;       ///< lines of sight per window and direction pair, on each surface
     uint64_t seed = 1;
 };
 
