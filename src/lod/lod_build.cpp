@@ -253,7 +253,7 @@ void measured_errors(const LodSpec &spec, const prefilter::PrefilteredModel *mod
         if (!le || !le->is_object() || !le->contains("window_error") || !le->contains("removed_variance") ||
             !(*le)["window_error"].is_array() || !(*le)["removed_variance"].is_number())
             lp.fail("rule", fmt::format("\"mse\": level x{} of the model '{}' has no measured errors (lod_error); "
-                                        "remake it with this meso prefilter", spec.factors[k], spec.model_dir));
+                                        "remake it with meso prefilter --level-error", spec.factors[k], spec.model_dir));
         std::vector<float> w;
         for (const auto &x : (*le)["window_error"]) w.push_back(x.is_number() ? std::max(0.f, x.get<float>()) : 0.f);
         e.push_back(std::move(w));

@@ -352,7 +352,7 @@ PrefilteredModel build_model(const PipelineOptions &opts) {
     if (dist::rank() == 0) std::fprintf(stderr, "  T/S of %zu level(s): %.1f s\n", levels.size(), ts_s);
     for (size_t i = 0; i < levels.size(); ++i) {
         finish_level(o, levels[i], st[i], ts_s / double(levels.size()), levels.size());
-        level_error_stage(o, orig.cells, *in.base, levels[i]);
+        if (o.level_error) level_error_stage(o, orig.cells, *in.base, levels[i]);
         model.levels.push_back(std::move(levels[i].L));
     }
     model.manifest["total_seconds"] = since(t_all);
