@@ -148,14 +148,14 @@ Spectrum PathIntegrator::trace_lod(const Scene &scene, RayDifferential ray, Samp
     // The footprint on the LoD shape picks the level (paper 004 §7.2); the whole path then sees
     // only that level. A level at or beyond every chain's last one sees the same geometry as the
     // coarsest mask: the camera ray's hit is kept; other levels retrace it.
-    // The footprint is the camera ray's per-sample one (the pixel's times max(1/8, 1/sqrt(spp)),
-    // as for texture filtering; geometry/lod.h): a level's error is per patch, so a pixel that
-    // averages P patches carries about 1/sqrt(P) of it, and with P growing like spp the level's
-    // bias² falls like the variance instead of leaving a floor.
+    // With a model's measured errors the level is the one of least expected pixel MSE at the
+    // pixel's footprint and the render's spp; else the camera ray's per-sample footprint picks it
+    // (the pixel's times max(1/8, 1/sqrt(spp)); geometry/lod.h has both rules).
     first.si.compute_differentials(ray, scene.camera.get());
     first.differentials = true;
     const LodGroup &g = *first.si.shape->lod;
-    const LodSelection sel = select_path_level(g, first.si.dudx, first.si.dudy, first.si.dvdx, first.si.dvdy);
+    const LodSelection sel = select_path_level(g, first.si.dudx, first.si.dudy, first.si.dvdx, first.si.dvdy,
+                                               ray.footprint_scale, samples_per_pixel());
     auto at_level = [&](int level) {
         if (level >= m_lod_last) return trace(scene, ray, sampler, stats, &first);
         RayDifferential r = ray;

@@ -293,3 +293,110 @@ TEST(LodPath, ShorterChainsAreSeenAtTheirLastLevel) {
             EXPECT_EQ(si.shape->lod_level, expected) << x << " level " << level;
         }
 }
+
+// Expected-MSE rule (geometry/lod.h): analytic switch points of J_k = E(r) - V / n.
+namespace {
+using Windows = std::vector<std::vector<float>>;
+/// E(r) of independent cell errors: e / r² at r = 1, 2, 4, ... (the measured windows).
+std::vector<float> independent(float e, int windows) {
+    std::vector<float> w;
+    for (int j = 0; j < windows; ++j) w.push_back(e / float(1 << (2 * j)));
+    return w;
+}
+}  // namespace
+
+TEST(LodMse, TwoLevelsSwitchWhereBiasEqualsTheVarianceRemoved) {
+    // Factors 1, 8; E(r) = e / r², V = v: level 1 wins where e F² / w² < v / n, i.e. past
+    // w* = F sqrt(e n / v) = 64 at e = v, n = 64; the octave around w* is shared half and half.
+    LodChain c({1.f, 8.f});
+    const Windows E{{}, independent(0.5f, 8)};
+    const std::vector<float> V{0.f, 0.5f};
+    LodSelection s = select_mse_level(c, E, V, 16.f, 64.f);
+    EXPECT_EQ(s.lo, 0);
+    EXPECT_EQ(s.hi, 0);
+    s = select_mse_level(c, E, V, 256.f, 64.f);
+    EXPECT_EQ(s.lo, 1);
+    EXPECT_EQ(s.hi, 1);
+    s = select_mse_level(c, E, V, 64.f, 64.f);
+    EXPECT_EQ(s.lo, 0);
+    EXPECT_EQ(s.hi, 1);
+    EXPECT_NEAR(s.t, 0.5f, 1e-3f);
+    // A quarter octave above w*: level 1 is best over 3/4 of the octave.
+    s = select_mse_level(c, E, V, 64.f * std::pow(2.f, 0.25f), 64.f);
+    EXPECT_NEAR(s.t, 0.75f, 1e-3f);
+    // Four times the samples: the variance removed counts a quarter, the switch moves to 2 w*.
+    s = select_mse_level(c, E, V, 128.f, 256.f);
+    EXPECT_NEAR(s.t, 0.5f, 1e-3f);
+    // The bias scales the footprint.
+    s = select_mse_level(c, E, V, 32.f, 64.f, 2.f);
+    EXPECT_NEAR(s.t, 0.5f, 1e-3f);
+}
+
+TEST(LodMse, NoGainOrNoFootprintKeepsTheOriginal) {
+    LodChain c({1.f, 4.f, 16.f});
+    const Windows E{{}, {0.f}, {0.f}};
+    // A level that removes no variance (or adds some: its own estimator's noise) is never used,
+    // even without any model error.
+    for (float w : {0.5f, 4.f, 100.f, 1e6f}) {
+        LodSelection s = select_mse_level(c, E, {0.f, 0.f, -0.1f}, w, 16.f);
+        EXPECT_EQ(s.hi, 0) << w;
+    }
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    for (float w : {0.f, -1.f, nan, std::numeric_limits<float>::infinity()})
+        EXPECT_EQ(select_mse_level(c, E, {0.f, 1.f, 2.f}, w, 16.f).hi, 0) << w;
+    // Mismatched sizes fall back to the footprint rule.
+    LodSelection s = select_mse_level(c, Windows{{}}, {0.f}, 16.f, 16.f);
+    EXPECT_EQ(s.lo, 2);
+}
+
+TEST(LodMse, ExactModelsTakeTheCoarsestLevelOnceItFitsInThePixel) {
+    // E = 0: only the detail above the pixel scale counts against a coarse level (r < 1:
+    // J = V (1 - r²) - V r² / n), so the coarsest level whose cell fits in the pixel wins.
+    LodChain c({1.f, 4.f, 16.f, 64.f});
+    const Windows E{{}, {0.f}, {0.f}, {0.f}};
+    const std::vector<float> V{0.f, 0.2f, 0.5f, 0.9f};
+    LodSelection s = select_mse_level(c, E, V, 40.f, 64.f);
+    EXPECT_EQ(s.lo, 2);
+    EXPECT_EQ(s.hi, 2);
+    s = select_mse_level(c, E, V, 1000.f, 64.f);
+    EXPECT_EQ(s.lo, 3);
+}
+
+TEST(LodMse, MiddleLevelWinsWhenTheCoarsestIsTooBiased) {
+    // n = 16, w = 64: J_1 = 0.01 / 256 - 0.5 / 16 < 0, J_2 = 1 / 16 - 0.6 / 16 > 0.
+    LodChain c({1.f, 4.f, 16.f});
+    const Windows E{{}, independent(0.01f, 6), independent(1.f, 6)};
+    LodSelection s = select_mse_level(c, E, {0.f, 0.5f, 0.6f}, 64.f, 16.f);
+    EXPECT_EQ(s.lo, 1);
+    EXPECT_EQ(s.hi, 1);
+}
+
+TEST(LodMse, StructuredErrorsThatDoNotAverageKeepFinerLevels) {
+    // The same per-cell error, independent (falls like 1 / r²) or structured (constant over
+    // the measured windows): at r = 8, 0.5 / 64 < 0.25 / 16 takes the level, 0.5 does not.
+    LodChain c({1.f, 8.f});
+    const std::vector<float> V{0.f, 0.25f};
+    EXPECT_EQ(select_mse_level(c, {{}, independent(0.5f, 4)}, V, 64.f, 16.f).hi, 1);
+    EXPECT_EQ(select_mse_level(c, {{}, {0.5f, 0.5f, 0.5f, 0.5f}}, V, 64.f, 16.f).hi, 0);
+    // Past the last window the error falls like 1 / r².
+    EXPECT_EQ(select_mse_level(c, {{}, {0.5f, 0.5f}}, V, 8.f * 16.f, 16.f).hi, 1);
+}
+
+TEST(LodMse, PathLevelUsesThePixelFootprintAndTheSpp) {
+    // A camera ray scaled by 1/8 (64 spp): its footprint is 1/8 of the pixel's; the rule must see
+    // the pixel's. Without errors the per-sample footprint rule applies unchanged.
+    LodGroup g;
+    g.chain = LodChain({1.f, 8.f});
+    g.texel_w = g.texel_h = 1024;
+    const float du = 64.f / 1024 / 8;  // a 64-texel pixel, per sample
+    EXPECT_EQ(select_path_level(g, du, 0.f, 0.f, du).lo, 1);  // 8 texels: level 1 (footprint rule)
+    g.window_error = {{}, independent(0.5f, 8)};
+    g.removed_variance = {0.f, 0.5f};
+    LodSelection s = select_path_level(g, du, 0.f, 0.f, du, 0.125f, 64);
+    EXPECT_EQ(s.lo, 0);
+    EXPECT_NEAR(s.t, 0.5f, 1e-3f);
+    s = select_path_level(g, du, 0.f, 0.f, du, 0.125f, 0);  // spp unknown: 1 / scale² = 64
+    EXPECT_NEAR(s.t, 0.5f, 1e-3f);
+    s = select_path_level(g, du, 0.f, 0.f, du, 0.125f, 4);  // few samples: the coarse level
+    EXPECT_EQ(s.lo, 1);
+}

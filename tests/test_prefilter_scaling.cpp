@@ -17,6 +17,7 @@
 #include "prefilter/effective_brdf.h"
 #include "prefilter/least_squares.h"
 #include "prefilter/model.h"
+#include "prefilter/level_error.h"
 #include "prefilter/patch_ndf.h"
 #include "prefilter/scaling.h"
 #include "sampling/rng.h"
@@ -626,4 +627,37 @@ TEST(PrefilterScalingEstimator, ControlVariateIsUnbiased) {
     std::printf("chi-square per degree of freedom: %.3f (%d terms)\n", chi2 / dof, dof);
     EXPECT_LT(chi2 / dof, 1.25);
     EXPECT_GT(chi2 / dof, 0.75);
+}
+
+TEST(PrefilterLevelError, FlatMapHasNoErrorAndRemovesNoVariance) {
+    // A flat map: every cell of both surfaces reflects the same, and no line varies within a
+    // cell (a diffuse base: the integrand is constant), so E and V are 0 up to f'_low's
+    // quadrature of a delta NDF.
+    auto base = make_material(R"({"type": "diffuse", "reflectance": 0.8})");
+    Level L(HeightMap(32, 32, 0.f), 4, base);
+    LevelErrorOptions o;
+    o.cells = 16, o.directions = 4, o.lines = 32;
+    const LevelError e = measure_level_error(L.orig, *base, L.low, *L.flow, 4, o);
+    ASSERT_FALSE(e.window_error.empty());
+    for (double w : e.window_error) EXPECT_LT(w, 1e-6);
+    EXPECT_NEAR(e.removed_variance, 0.0, 1e-6);
+    // Windows of 1, 2 cells (at least 4 fit in the 8 x 8 cells).
+    EXPECT_EQ(e.window_error.size(), 3u);
+}
+
+TEST(PrefilterLevelError, BumpsAreRemovedVarianceAndMismatchesThrow) {
+    // fbm bumps under a glossy base: a line's value varies within a cell (V > 0), by far more
+    // than the cell means differ from the level's after its global scale (E < V).
+    std::map<std::string, std::string> p{{"size", "64"}, {"amplitude", "0.03"}, {"seed", "3"}};
+    HeightMap map = generate_height_map("fbm", p).height;
+    auto base = make_material(R"({"type": "conductor", "material": "Al", "alpha": 0.3})");
+    Level L(map, 8, base);
+    LevelErrorOptions o;
+    o.cells = 32, o.directions = 4, o.lines = 64;
+    const LevelError e = measure_level_error(L.orig, *base, L.low, *L.flow, 8, o);
+    EXPECT_GT(e.removed_variance, 0.01);
+    EXPECT_LT(e.patch_error, e.removed_variance);
+    EXPECT_THROW(measure_level_error(L.orig, *base, L.low, *L.flow, 4, o), MesoError);
+    o.lines = 1;
+    EXPECT_THROW(measure_level_error(L.orig, *base, L.low, *L.flow, 8, o), MesoError);
 }

@@ -467,3 +467,33 @@ TEST(PrefilteredMaterial, LeftHandedUvMirrorsTheMapsY) {
         expect_spectrum_near(ir->eval(plain_left, wo, wi), ir->eval(plain, wo_map, wi_map), 1e-4, "plain left-handed");
     }
 }
+
+TEST(PrefilteredLod, MseRuleReadsTheModelsLevelErrors) {
+    // lod "rule": "mse" (geometry/lod.h) needs a model whose levels carry "lod_error"; a level that
+    // removes no variance is never chosen, so the image is the original's (the footprint rule
+    // with a tiny bias), pixel for pixel.
+    const std::string dir = tiny_model().dir;
+    std::string e = error_of([&] {
+        load_scene(write_scene("mse_old.json", lod_scene(R"({"factors": [1, 4], "model": "model", "rule": "mse"})")), {});
+    });
+    EXPECT_NE(e.find("shapes[0].lod.rule: \"mse\": level x4 of the model"), std::string::npos) << e;
+    e = error_of([&] { load_scene(write_scene("mse_none.json", lod_scene(R"({"factors": [1, 4], "rule": "mse"})")), {}); });
+    EXPECT_NE(e.find("shapes[0].lod.rule: \"mse\" needs a prefiltered \"model\""), std::string::npos) << e;
+    const fs::path mse_dir = fs::path(dir).parent_path() / "model_mse";
+    fs::remove_all(mse_dir);
+    fs::copy(dir, mse_dir, fs::copy_options::recursive);
+    nlohmann::json man;
+    std::ifstream(mse_dir / "manifest.json") >> man;
+    for (auto &L : man["levels"]) L["lod_error"] = {{"window_error", {0.0}}, {"removed_variance", -1.0}};
+    std::ofstream(mse_dir / "manifest.json") << man.dump();
+    auto render_with = [&](const std::string &name, const std::string &lod) {
+        auto scene = load_scene(write_scene(name, lod_scene(lod)), {});
+        scene->build();
+        return meso::test::render_scene(*scene, 4);
+    };
+    const RenderResult mse = render_with("mse.json", R"({"factors": [1, 4], "model": "model_mse", "rule": "mse"})");
+    const RenderResult orig = render_with("mse_orig.json", R"({"factors": [1, 4], "model": "model", "bias": 1e-6})");
+    ASSERT_EQ(mse.image.width, orig.image.width);
+    for (int y = 0; y < 32; ++y)
+        for (int x = 0; x < 32; ++x) ASSERT_EQ(mse.image.at(x, y, 1), orig.image.at(x, y, 1)) << x << "," << y;
+}

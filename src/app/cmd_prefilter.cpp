@@ -177,7 +177,10 @@ SubcommandRegistrar reg_prefilter{
          app.add_option("--epsilon", o->epsilon, "eq. 12's epsilon, relative to the mean denominator")->capture_default_str();
          app.add_option("--seed", o->seed, "random seed of the estimators")->capture_default_str();
          app.add_option("-o,--output", o->output, "model directory to write");
-         app.add_flag("-q,--quiet", o->quiet, "no progress bar");
+         app.add_flag("--level-error", o->level_error,
+                      "measure each level's model error and removed variance into the manifest (lod_error) for the "
+                      "experimental lod \"rule\": \"mse\" (about 0.2-2 s a level)");
+        app.add_flag("-q,--quiet", o->quiet, "no progress bar");
          app.add_option("--threads", f->threads, "worker threads (default: all cores, shared among the MPI ranks on a node)");
          return [f] { return run_prefilter(*f); };
      }}};

@@ -61,9 +61,78 @@ float LodChain::position(float texels, float bias) const {
     return float(s.lo) + (s.hi != s.lo ? s.t : 0.f);
 }
 
-LodSelection select_path_level(const LodGroup &g, float dudx, float dudy, float dvdx, float dvdy) {
+namespace {
+
+using Windows = std::vector<std::vector<float>>;
+
+/// E(r) of lod.h: the error over windows of r x r cells (r >= 1) from the measured 1, 2, 4, ...
+double window_error_at(const std::vector<float> &E, double r) {
+    if (E.empty()) return 0.0;
+    const double j = std::log2(std::max(1.0, r));
+    const size_t last = E.size() - 1;
+    if (j >= double(last)) {
+        const double beyond = std::exp2(double(last)) / r;
+        return double(E[last]) * beyond * beyond;
+    }
+    const size_t i = size_t(j);
+    const double t = j - double(i);
+    return double(E[i]) * (1.0 - t) + double(E[i + 1]) * t;
+}
+
+/// J_k of lod.h's expected-MSE rule for level k at pixel footprint w (bias applied).
+double mse_change(const LodChain &c, const Windows &E, const std::vector<float> &V, int k, double w, double n) {
+    if (k == 0) return 0.0;
+    const double r = w / double(c.factor(k)), v = V[size_t(k)];
+    if (r >= 1.0) return window_error_at(E[size_t(k)], r) - v / n;
+    // The detail lost above the pixel scale is the original's (V when the level removes any).
+    return window_error_at(E[size_t(k)], 1.0) + std::max(v, 0.0) * (1.0 - r * r) - v * r * r / n;
+}
+
+int best_level(const LodChain &c, const Windows &E, const std::vector<float> &V, double w, double n) {
+    int best = 0;
+    double jb = 0.0;
+    for (int k = 1; k < c.levels(); ++k) {
+        const double j = mse_change(c, E, V, k, w, n);
+        if (j < jb) best = k, jb = j;
+    }
+    return best;
+}
+
+}  // namespace
+
+LodSelection select_mse_level(const LodChain &chain, const std::vector<std::vector<float>> &patch_error,
+                              const std::vector<float> &removed_variance, float pixel_texels, float spp, float bias) {
+    LodSelection s;
+    const int n = chain.levels();
+    if (int(patch_error.size()) != n || int(removed_variance.size()) != n) return chain.select(pixel_texels, bias);
+    const double w = double(pixel_texels) * double(bias);
+    const double ns = std::max(1.0, double(spp));
+    if (!(w > 0.0) || !std::isfinite(w) || n == 1) return s;  // no footprint: the original
+    // The octave [w / sqrt 2, w sqrt 2]: the finer level at its lower end, the coarser at its
+    // upper end, and the switch between them by bisection in log w.
+    const double lo_w = w * std::sqrt(0.5), hi_w = w * std::sqrt(2.0);
+    const int a = best_level(chain, patch_error, removed_variance, lo_w, ns);
+    const int b = best_level(chain, patch_error, removed_variance, hi_w, ns);
+    s.lo = std::min(a, b);
+    s.hi = std::max(a, b);
+    if (s.lo == s.hi) return s;
+    double l0 = std::log(lo_w), l1 = std::log(hi_w);
+    for (int it = 0; it < 16; ++it) {
+        const double m = 0.5 * (l0 + l1);
+        (best_level(chain, patch_error, removed_variance, std::exp(m), ns) == a ? l0 : l1) = m;
+    }
+    const double frac_b = (std::log(hi_w) - 0.5 * (l0 + l1)) / std::log(2.0);  // where b is best
+    s.t = float(std::clamp(b == s.hi ? frac_b : 1.0 - frac_b, 0.0, 1.0));
+    return s;
+}
+
+LodSelection select_path_level(const LodGroup &g, float dudx, float dudy, float dvdx, float dvdy,
+                               float footprint_scale, int spp) {
     const float w = footprint_texels(dudx, dudy, dvdx, dvdy, g.texel_w, g.texel_h);
-    return g.chain.select(w, g.bias);
+    if (g.window_error.empty()) return g.chain.select(w, g.bias);
+    const float scale = footprint_scale > 0.f && std::isfinite(footprint_scale) ? footprint_scale : 1.f;
+    const float n = spp > 0 ? float(spp) : 1.f / (scale * scale);
+    return select_mse_level(g.chain, g.window_error, g.removed_variance, w / scale, n, g.bias);
 }
 
 }  // namespace meso

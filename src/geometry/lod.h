@@ -99,11 +99,40 @@ struct LodGroup {
     float bias = 1.f;
     LodBlend blend = LodBlend::Stochastic;
     double texel_w = 1, texel_h = 1;
+    /// lod "rule": "mse" only. Per level (index 0, the original: empty / 0), the measured model
+    /// error E over windows of 1, 2, 4, ... cells and the removed per-sample variance V of a
+    /// prefiltered model (prefilter/level_error.h); empty: the per-sample footprint rule. See
+    /// "Expected-MSE rule" below.
+    std::vector<std::vector<float>> window_error;
+    std::vector<float> removed_variance;
 };
 
+// Expected-MSE rule (lod "rule": "mse", a model that measured E and V for every level; opt-in:
+// see docs/bench.md "Expected-MSE level choice" for why it is not the default). A pixel of
+// footprint w texels rendered with n samples: level k of factor F, r = bias w / F cells across
+// the pixel, changes the pixel's expected squared error (relative to the original, in units of
+// the squared mean, level_error.h) by
+//     J_k = E(r) - V / n                            (r >= 1: E(r) the model error averaged over
+//                                                    windows of r x r cells, interpolated linearly
+//                                                    in log r between the measured 1, 2, 4, ...,
+//                                                    falling like 1 / r² past the last)
+//     J_k = E(1) + V+ (1 - r²) - V r² / n           (r < 1: the pixel sees part of one cell; the
+//                                                    cell's detail above the pixel scale, V+ =
+//                                                    max(V, 0), is lost)
+// and J_0 = 0. The path's level is the one of least J at the PIXEL footprint; over the octave
+// [w / sqrt 2, w sqrt 2] the choice is blended: `hi` (the coarser) gets the fraction of that
+// octave (in log w) where it is the best, so levels fade in without popping. No constant is
+// fitted: E and V come from `meso prefilter`, n is the render's spp.
+LodSelection select_mse_level(const LodChain &chain, const std::vector<std::vector<float>> &window_error,
+                              const std::vector<float> &removed_variance, float pixel_texels, float spp,
+                              float bias = 1.f);
+
 /// The levels a path sees when its camera ray hits a shape of `g` with uv derivatives
-/// (dudx, dudy, dvdx, dvdy) (paper 004 §7.2: one level per path, from the first hit's
-/// footprint in texels of the original map, scaled by the group's bias).
-LodSelection select_path_level(const LodGroup &g, float dudx, float dudy, float dvdx, float dvdy);
+/// (dudx, dudy, dvdx, dvdy) of a ray whose differentials are scaled by `footprint_scale` (the
+/// per-sample factor; the pixel's footprint is the ray's / footprint_scale), in a render of
+/// `spp` samples per pixel (<= 0: 1 / footprint_scale²). Paper 004 §7.2: one level per path.
+/// With measured errors, the expected-MSE rule; else the per-sample footprint rule.
+LodSelection select_path_level(const LodGroup &g, float dudx, float dudy, float dvdx, float dvdy,
+                               float footprint_scale = 1.f, int spp = 0);
 
 }  // namespace meso

@@ -30,6 +30,7 @@ void parse_chain(const Properties &lp, LodSpec &spec) {
     spec.bias = lp.get_float("bias", 1.f);
     if (!(spec.bias > 0.f) || !std::isfinite(spec.bias)) lp.fail("bias", "expected a positive number (footprint scale)");
     spec.blend = lp.get_enum<LodBlend>("blend", "stochastic", {{"stochastic", LodBlend::Stochastic}, {"blend", LodBlend::Blend}});
+    spec.mse_rule = lp.get_enum<bool>("rule", "footprint", {{"footprint", false}, {"mse", true}});
 }
 
 /// "model", "scaling" and "estimator": the prefiltered model the levels come from, if any.
@@ -236,6 +237,32 @@ std::shared_ptr<const Heightfield> level_field(const LodSpec &spec, const Displa
     return std::make_shared<Heightfield>(field->box_downsampled(int(f)), 1.f, 0.f);
 }
 
+/// lod "rule": "mse": every level's measured model error over windows and removed variance
+/// (manifest "lod_error", prefilter/level_error.h) for the expected-MSE level choice
+/// (geometry/lod.h); an error when the model lacks them (made before they existed) or is absent.
+void measured_errors(const LodSpec &spec, const prefilter::PrefilteredModel *model, LodGroup &g) {
+    const Properties &lp = spec.block;
+    if (!model || !spec.materials.empty())
+        lp.fail("rule", "\"mse\" needs a prefiltered \"model\" (and no explicit \"materials\"): it reads the level "
+                        "errors that meso prefilter measures");
+    std::vector<std::vector<float>> e{{}};
+    std::vector<float> v{0.f};
+    for (size_t k = 1; k < spec.factors.size(); ++k) {
+        const prefilter::PrefilteredLevel *L = model->level_for_factor(int(spec.factors[k]));
+        const nlohmann::json *le = L && L->stats.is_object() && L->stats.contains("lod_error") ? &L->stats["lod_error"] : nullptr;
+        if (!le || !le->is_object() || !le->contains("window_error") || !le->contains("removed_variance") ||
+            !(*le)["window_error"].is_array() || !(*le)["removed_variance"].is_number())
+            lp.fail("rule", fmt::format("\"mse\": level x{} of the model '{}' has no measured errors (lod_error); "
+                                        "remake it with meso prefilter --level-error", spec.factors[k], spec.model_dir));
+        std::vector<float> w;
+        for (const auto &x : (*le)["window_error"]) w.push_back(x.is_number() ? std::max(0.f, x.get<float>()) : 0.f);
+        e.push_back(std::move(w));
+        v.push_back((*le)["removed_variance"].get<float>());
+    }
+    g.window_error = std::move(e);
+    g.removed_variance = std::move(v);
+}
+
 }  // namespace
 
 LodSpec parse_lod_spec(const Properties &lp) {
@@ -264,6 +291,7 @@ std::vector<std::shared_ptr<Shape>> build_lod_levels(const LodSpec &spec, const 
     group->bias = spec.bias;
     group->blend = spec.blend;
     shell->texel_grid(group->texel_w, group->texel_h);
+    if (spec.mse_rule) measured_errors(spec, model ? &*model : nullptr, *group);
     shape->lod = group;
     shape->lod_level = 0;
     std::vector<std::shared_ptr<Shape>> levels;

@@ -45,6 +45,7 @@ struct LodSpec {
     LodChain chain;                    ///< built from `factors`
     float bias = 1.f;                  ///< footprint scale (> 1: coarser levels sooner)
     LodBlend blend = LodBlend::Stochastic;
+    bool mse_rule = false;             ///< "rule": "mse" (geometry/lod.h, expected-MSE rule); else the footprint rule
     bool same_model = false;           ///< every level displaced by the original map
     LodTransferFilter transfer_filter = LodTransferFilter::Exact;
     std::string model_dir;             ///< the resolved prefiltered model directory; empty without "model"

@@ -18,6 +18,7 @@
 #include "geometry/heightmap_gen.h"
 #include "meso_version.h"
 #include "prefilter/least_squares.h"
+#include "prefilter/level_error.h"
 #include "prefilter/patch_ndf.h"
 #include "prefilter/scaling.h"
 #include "sampling/rng.h"
@@ -305,6 +306,22 @@ void finish_level(const PipelineOptions &o, LevelWork &w, const ScalingStats &st
                  ir ? st.rank1_svd_rel_error_ir : st.rank1_svd_rel_error);
 }
 
+/// The level's per-cell model error and the per-sample variance it removes (level_error.h), for
+/// the renderer's level choice (geometry/lod.h); into the manifest as "lod_error".
+void level_error_stage(const PipelineOptions &o, const Heightfield &orig, const Material &base, LevelWork &w) {
+    const auto t0 = Clock::now();
+    LevelErrorOptions eo;
+    eo.seed = hash_combine(o.seed, 0x1e7e1e77ULL);
+    const LevelError e = measure_level_error(orig, base, *w.low_field, *w.low_mat, w.L.factor, eo);
+    w.L.stats["lod_error"] = {{"patch_error", e.patch_error}, {"removed_variance", e.removed_variance},
+                              {"window_error", e.window_error},
+                              {"cells", e.cells}, {"directions", e.directions}, {"lines", e.lines},
+                              {"seconds", since(t0)}};
+    if (dist::rank() == 0)
+        std::fprintf(stderr, "  x%d: model error over 1, 2, 4, ... cells %s, removed variance per sample %.4g (relative; %.2f s)\n",
+                     w.L.factor, fmt::format("{:.3g}", fmt::join(e.window_error, " ")).c_str(), e.removed_variance, since(t0));
+}
+
 }  // namespace
 
 PrefilteredModel build_model(const PipelineOptions &opts) {
@@ -335,6 +352,7 @@ PrefilteredModel build_model(const PipelineOptions &opts) {
     if (dist::rank() == 0) std::fprintf(stderr, "  T/S of %zu level(s): %.1f s\n", levels.size(), ts_s);
     for (size_t i = 0; i < levels.size(); ++i) {
         finish_level(o, levels[i], st[i], ts_s / double(levels.size()), levels.size());
+        if (o.level_error) level_error_stage(o, orig.cells, *in.base, levels[i]);
         model.levels.push_back(std::move(levels[i].L));
     }
     model.manifest["total_seconds"] = since(t_all);

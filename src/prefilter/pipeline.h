@@ -40,6 +40,7 @@ struct PipelineOptions {
     bool interreflections = true;  ///< --interreflections on: also T_ir, S_ir
     int paths = 64, low_paths = 64, low_nodes = 4;  ///< --paths, --low-paths, --low-nodes
     bool jitter_directions = true;  ///< --directions jitter (true, default) or centres (scaling.h, "Directions")
+    bool level_error = false;  ///< --level-error: measure each level's model error for lod "rule": "mse" (level_error.h)
     int cv_lines = 0;  ///< --cv-lines: the control variate's cheap lines (scaling.h, "Control variate")
     double target_error = 0;   ///< --target-error (0: one round)
     int max_rounds = 8;        ///< --max-rounds

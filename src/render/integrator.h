@@ -31,6 +31,13 @@ public:
     /// the render loop makes camera rays without them (two camera rays less per sample:
     /// pay only for what the scene uses). The default is the safe answer.
     virtual bool camera_differentials(const Scene &scene) const { (void)scene; return true; }
+    /// The samples per pixel of the render about to run (set by the render loop before
+    /// preprocess; 0: unknown). The LoD level choice weighs bias against variance with it.
+    void set_samples_per_pixel(int spp) { m_spp = spp; }
+    int samples_per_pixel() const { return m_spp; }
+
+private:
+    int m_spp = 0;
 };
 
 }  // namespace meso

@@ -173,6 +173,7 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     tbb::enumerable_thread_specific<RenderStats> stats;
     std::unique_ptr<std::ofstream> csv = open_convergence_log(opts, ranks);
 
+    scene.integrator->set_samples_per_pixel(total_spp);
     scene.integrator->preprocess(scene);
     Progress progress(opts.progress && rank == 0, timed ? opts.time_budget_s : double(total_spp), timed ? "s" : "spp");
     dist::barrier();  // every rank starts the clock (and the time budget) together
