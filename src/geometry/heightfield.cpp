@@ -321,10 +321,12 @@ inline double tile_exit_t(int64_t tile, int step, int64_t size, int64_t off, dou
     return (boundary - p0) / dir;
 }
 
-/// Narrows [c0, c1] to the t where l + t dd lies in [0, 1] (one axis of a cell).
-inline void clip_to_unit(double l, double dd, double &c0, double &c1) {
+/// Narrows [c0, c1] to the t where l + t dd lies in [0, 1] (one axis of a cell); inv_dd =
+/// 1 / dd in double (a product instead of two divisions a leaf; neighbouring cells still get
+/// bitwise the same boundary: 1 - l here is -l' there, times the same inv_dd).
+inline void clip_to_unit(double l, double dd, double inv_dd, double &c0, double &c1) {
     if (dd != 0.0) {
-        double u = -l / dd, v = (1.0 - l) / dd;
+        double u = -l * inv_dd, v = (1.0 - l) * inv_dd;
         if (u > v) std::swap(u, v);
         c0 = std::max(c0, u);
         c1 = std::min(c1, v);
@@ -344,6 +346,7 @@ struct Heightfield::Traversal {
     const Heightfield &f;
     Vec3 o, d;
     float inv[3];         ///< 1/d, tiny-safe
+    double inv_dx, inv_dy;  ///< 1/d.x, 1/d.y in double (0 where d is 0) for the leaves' cell clip
     float tmin, tmax;     ///< clipped to the field's height slab by clip_to_height_slab
     int64_t ox, oy;       ///< the caller's integer cell offset
     bool flip_x, flip_y;  ///< the ray runs towards -x, -y: a block's columns, rows are visited last to first
@@ -361,6 +364,8 @@ struct Heightfield::Traversal {
         inv[0] = safe_inv(d.x);
         inv[1] = safe_inv(d.y);
         inv[2] = safe_inv(d.z);
+        inv_dx = d.x != 0.f ? 1.0 / double(d.x) : 0.0;
+        inv_dy = d.y != 0.f ? 1.0 / double(d.y) : 0.0;
         flip_x = d.x < 0;
         flip_y = d.y < 0;
     }
@@ -395,6 +400,24 @@ struct Heightfield::Traversal {
         w.tnx = tile_exit_t(w.tx, w.stepx, f.m_w, ox, o.x, d.x);
         w.tny = tile_exit_t(w.ty, w.stepy, f.m_h, oy, o.y, d.y);
         return w;
+    }
+
+    /// Whether the ray between tmin and tmax stays inside one tile, by a margin far above the
+    /// walk's double round-off (the common case of a shell segment): then `w` gets that tile,
+    /// which start_tile_walk would start in and never leave, without its divisions.
+    bool single_tile(TileWalk &w) const {
+        const int64_t qx = floor_div(ox, f.m_w), qy = floor_div(oy, f.m_h);
+        const double bx = double(ox - qx * f.m_w) + double(o.x), by = double(oy - qy * f.m_h) + double(o.y);
+        const double x0 = bx + double(tmin) * d.x, x1 = bx + double(tmax) * d.x;
+        const double y0 = by + double(tmin) * d.y, y1 = by + double(tmax) * d.y;
+        const double mx = 1e-6 * (1.0 + std::abs(bx)), my = 1e-6 * (1.0 + std::abs(by));
+        const double W = f.m_w, H = f.m_h;
+        if (!(std::min(x0, x1) >= mx && std::max(x0, x1) <= W - mx && std::min(y0, y1) >= my &&
+              std::max(y0, y1) <= H - my))
+            return false;
+        w.tx = qx;
+        w.ty = qy;
+        return true;
     }
 
     /// Moves the walk into the next tile along the ray (the nearer of the two boundaries).
@@ -515,8 +538,8 @@ struct Heightfield::Traversal {
         cell.lx = double(o.x) - double(x0);
         cell.ly = double(o.y) - double(y0);
         double c0 = tmin, c1 = tmax;
-        clip_to_unit(cell.lx, d.x, c0, c1);
-        clip_to_unit(cell.ly, d.y, c0, c1);
+        clip_to_unit(cell.lx, d.x, inv_dx, c0, c1);
+        clip_to_unit(cell.ly, d.y, inv_dy, c0, c1);
         if (!(c1 >= c0)) return false;
         const float s0 = std::max(next_down(float(c0)), tmin);
         const float s1 = std::min(next_up(float(c1)), tmax);
@@ -687,8 +710,10 @@ bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHi
     if (m_levels.empty() || !(tmax > tmin)) return false;
     Traversal tr(*this, o, d, tmin, tmax, ox, oy);
     if (!tr.clip_to_height_slab()) return false;
+    TileWalk walk;
+    if (tr.single_tile(walk)) return tr.trace_tile<AnyHit, Simd>(tr.tile_segment(walk, tr.tmin, tr.tmax), hit);
     // Tiles crossed by the ray between tmin and tmax (2D DDA on the W x H tile grid).
-    TileWalk walk = tr.start_tile_walk();
+    walk = tr.start_tile_walk();
     double t_tile0 = tr.tmin;
     for (int guard = 0; guard < (1 << 22); ++guard) {
         const double t_tile1 = std::min(double(tr.tmax), std::min(walk.tnx, walk.tny));
