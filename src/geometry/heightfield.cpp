@@ -253,19 +253,28 @@ struct PyramidNode {
     int level, i, j;
 };
 
-/// The nodes still to visit in the current tile, depth first: the top one is popped next. A
-/// step pushes at most 16 nodes (a 4 x 4 block) and goes down at least one level.
-struct NodeStack {
-    PyramidNode nodes[16 * 32 + 4];
-    int size = 0;
-    void push(const PyramidNode &n) { nodes[size++] = n; }
-    PyramidNode pop() { return nodes[--size]; }
-    bool empty() const { return size == 0; }
-};
-
 /// The ncols x nrows nodes of `level` from (i0, j0) (at most 4 x 4, all of which exist).
 struct NodeBlock {
     int level, i0, j0, ncols, nrows;
+};
+
+/// The nodes still to visit in the current tile, depth first, kept as blocks with the bits of
+/// their nodes still to visit (block_overlap's mask; the lowest bit of the top block is
+/// visited next): one entry a tested block instead of one a node that passed, most of which a
+/// closest hit never reaches. A step adds at most one block and goes down at least one level,
+/// and a block stays only while it has bits, so the levels decrease up the stack: at most one
+/// entry a level (32 levels at most, the sizes being ints).
+struct NodeStack {
+    struct Entry {
+        NodeBlock b;
+        int mask;
+    };
+    Entry e[34];
+    int size = 0;
+    void push(const NodeBlock &b, int mask) {
+        if (mask) e[size++] = {b, mask};
+    }
+    bool empty() const { return size == 0; }
 };
 
 /// Position of the 2D DDA over the W x H tile grid.
@@ -467,17 +476,18 @@ struct Heightfield::Traversal {
         return {k, i0, j0, i1 - i0 + 1, j1 - j0 + 1};
     }
 
-    /// The nodes of `b` whose bit is set in `mask` (bit c' + 4 r': the node visited c'-th in
-    /// its row, r'-th row; see block_overlap), pushed back to front so that the one the ray
-    /// enters first is popped first. A ray visits the cells it crosses in this order: it moves
-    /// monotonically in x and y, so of two cells it crosses the one in an earlier row (in its
-    /// y direction), or in the same row and an earlier column, comes first.
-    void push_block(const NodeBlock &b, int mask, NodeStack &stack) const {
-        while (mask) {
-            const int q = 31 - __builtin_clz(unsigned(mask));
-            mask ^= 1 << q;
-            stack.push(block_node(b, q));
-        }
+    /// The next node to visit, taken off the stack: the lowest bit of the top block's mask (bit
+    /// c' + 4 r': the node visited c'-th in its row, r'-th row; see block_overlap), so that of
+    /// a block's nodes the one the ray enters first comes first. A ray visits the cells it
+    /// crosses in this order: it moves monotonically in x and y, so of two cells it crosses
+    /// the one in an earlier row (in its y direction), or in the same row and an earlier
+    /// column, comes first.
+    PyramidNode pop_node(NodeStack &stack) const {
+        NodeStack::Entry &t = stack.e[stack.size - 1];
+        const PyramidNode nd = block_node(t.b, __builtin_ctz(unsigned(t.mask)));
+        t.mask &= t.mask - 1;
+        if (!t.mask) --stack.size;
+        return nd;
     }
 
     /// The node of `b` at bit q of block_overlap's mask.
@@ -568,7 +578,7 @@ struct Heightfield::Traversal {
     }
 
     /// Bit c' + 4 r' set: the node visited c'-th in its row, r'-th row (columns and rows of
-    /// `b` in the ray's x and y directions; push_block maps bits to nodes) exists and
+    /// `b` in the ray's x and y directions; block_node maps bits to nodes) exists and
     /// node_overlaps holds for it. mm: 32 floats as in Level::blocks (mins, then maxes; row r
     /// of the block at 4 r) holding b's nodes from its corner. The SSE path computes
     /// node_overlaps' formula for four nodes of a row at once with the same float operations
@@ -657,31 +667,22 @@ struct Heightfield::Traversal {
         return block_overlap(b, f.m_levels[b.level].block(nd.i, nd.j), s);
     }
 
-    /// The first hit in the tile segment `s`. Reference: a node is tested when popped and all
-    /// the nodes of the block below it are pushed. Simd: the start block is tested at once,
-    /// and below it the block under a node is tested together when the node is popped; only
-    /// those that pass are pushed. Both visit the same leaves in the same order.
+    /// The first hit in the tile segment `s`. Reference: a node is tested when popped and the
+    /// block below it is pushed with all its nodes. Simd: the start block is tested at once,
+    /// and below it the block under a node is tested together when the node is popped; it is
+    /// pushed with the nodes that pass. Both visit the same leaves in the same order.
     template <bool AnyHit, bool Simd>
     bool trace_tile(const TileSegment &s, HeightfieldHit *hit) const {
         NodeStack stack;
         const NodeBlock start = start_block(s);
-        push_block(start, Simd ? gathered_overlap(start, s) : block_exist(start), stack);
+        stack.push(start, Simd ? gathered_overlap(start, s) : block_exist(start));
         float x0, y0;
-        PyramidNode nd;
-        bool next = false;  // Simd: nd is the front node of the block just tested (not pushed)
-        while (next || !stack.empty()) {
-            if (!next) nd = stack.pop();
-            next = false;
+        while (!stack.empty()) {
+            const PyramidNode nd = pop_node(stack);
             if constexpr (Simd) {
                 if (nd.level > 0) {
                     const NodeBlock b = below(nd);
-                    const int mask = below_overlap(nd, b, s);
-                    if (!mask) continue;
-                    // The front node is visited next: taken at once instead of pushed and popped.
-                    const int q = __builtin_ctz(unsigned(mask));
-                    push_block(b, mask ^ (1 << q), stack);
-                    nd = block_node(b, q);
-                    next = true;
+                    stack.push(b, below_overlap(nd, b, s));
                     continue;
                 }
                 x0 = s.tile_x + float(nd.i);
@@ -690,7 +691,7 @@ struct Heightfield::Traversal {
                 if (!node_overlaps(nd, s, x0, y0)) continue;
                 if (nd.level > 0) {
                     const NodeBlock b = below(nd);
-                    push_block(b, block_exist(b), stack);
+                    stack.push(b, block_exist(b));
                     continue;
                 }
             }
