@@ -646,16 +646,14 @@ struct Heightfield::Traversal {
     /// block, a level-1 node's children): its heights gathered.
     int gathered_overlap(const NodeBlock &b, const TileSegment &s) const {
         const Level &L = f.m_levels[b.level];
+        // Only the rows that exist are read, and lanes past ncols are masked: each is written
+        // once (zeroing all 32 first compiled to a rep stos, slow to start).
         alignas(16) float mm[32];
-#if defined(__SSE2__)
-        for (int k = 0; k < 32; k += 4) _mm_store_ps(mm + k, _mm_setzero_ps());  // not rep stos
-#else
-        std::fill(mm, mm + 32, 0.f);
-#endif
         for (int r = 0; r < b.nrows; ++r)
-            for (int c = 0; c < b.ncols; ++c) {
-                mm[4 * r + c] = L.min_at(b.i0 + c, b.j0 + r);
-                mm[16 + 4 * r + c] = L.max_at(b.i0 + c, b.j0 + r);
+            for (int c = 0; c < 4; ++c) {
+                const bool in = c < b.ncols;
+                mm[4 * r + c] = in ? L.min_at(b.i0 + c, b.j0 + r) : 0.f;
+                mm[16 + 4 * r + c] = in ? L.max_at(b.i0 + c, b.j0 + r) : 0.f;
             }
         return block_overlap(b, mm, s);
     }
