@@ -182,6 +182,12 @@ bool patch_root(double lox, double loy, double loz, Vec3 d, float h00, float h10
     const double C = oh - h00 - e * ox - f * oy - g * ox * oy;
     const double smax = double(t1) - double(t0);
     auto F = [&](double s) { return (A * s + B) * s + C; };
+    // No root: F has one strict sign at both ends and is monotone in between (F' = 2 A s + B,
+    // linear, of one strict sign at both ends), most of the cells a ray passes over. No sqrt
+    // or division then. A root the closed form would place within round-off inside an end
+    // lies within the neighbouring cell's one-ulp overlap, which finds it.
+    const double f_end = F(smax);
+    if (C * f_end > 0.0 && B * (2.0 * A * smax + B) > 0.0) return false;
 
     double roots[2];
     int n = 0;
@@ -206,7 +212,7 @@ bool patch_root(double lox, double loy, double loz, Vec3 d, float h00, float h10
         }
     // Round-off guard: a sign change of F over [0, smax] is a crossing the closed form
     // missed (roots a hair outside the interval). Take the root nearest the interval.
-    const double f0 = F(0.0), f1 = F(smax);
+    const double f0 = F(0.0), f1 = f_end;
     if ((f0 <= 0.0 && f1 >= 0.0) || (f0 >= 0.0 && f1 <= 0.0)) {
         double best = 0.0, dist = Infinity;
         for (int k = 0; k < n; ++k) {
