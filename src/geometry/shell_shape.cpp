@@ -296,19 +296,35 @@ bool quad_edges(const double v[4][2], float edges[3][4]) {
 }  // namespace
 
 void ShellShape::pair_prisms(const std::vector<PrismCorners> &corners) {
-    // Greedy over base edges (welded): a prism pairs with the first unpaired neighbour it
-    // can. A triangulated quad's two triangles are usually consecutive, so they pair.
-    std::unordered_map<uint64_t, uint32_t> owner;
-    owner.reserve(m_prisms.size() * 2);
-    for (uint32_t p = 0; p < uint32_t(m_prisms.size()); ++p) {
-        if (!m_prisms[p].one_map) continue;
-        const uint32_t *w = corners[p].weld;
+    // Two passes over base edges (welded). First, prisms pair across an edge that is the
+    // longest (in cell space) of both: the diagonal of a triangulated rectangle, whatever the
+    // order of the triangles. Then a prism pairs with the first unpaired neighbour it can.
+    auto longest = [&](uint32_t p) {
+        const double(*t)[3] = corners[p].tv;
+        int best = 0;
+        double len = -1.0;
         for (int e = 0; e < 3; ++e) {
-            const uint32_t a = w[e], b = w[(e + 1) % 3];
-            const uint64_t key = uint64_t(std::min(a, b)) << 32 | std::max(a, b);
-            const auto [it, fresh] = owner.try_emplace(key, p);
-            if (fresh || m_prisms[it->second].partner != kNoPartner || m_prisms[p].partner != kNoPartner) continue;
-            if (try_pair(it->second, p, corners)) break;
+            const double l = sqr(t[(e + 1) % 3][0] - t[e][0]) + sqr(t[(e + 1) % 3][1] - t[e][1]);
+            if (l > len) len = l, best = e;
+        }
+        return best;
+    };
+    for (const bool diagonals : {true, false}) {
+        std::unordered_map<uint64_t, std::pair<uint32_t, int>> owner;  // edge -> (prism, its edge)
+        owner.reserve(m_prisms.size() * 2);
+        for (uint32_t p = 0; p < uint32_t(m_prisms.size()); ++p) {
+            if (!m_prisms[p].one_map || m_prisms[p].partner != kNoPartner) continue;
+            const uint32_t *w = corners[p].weld;
+            const int lp = diagonals ? longest(p) : -1;
+            for (int e = 0; e < 3; ++e) {
+                const uint32_t a = w[e], b = w[(e + 1) % 3];
+                const uint64_t key = uint64_t(std::min(a, b)) << 32 | std::max(a, b);
+                const auto [it, fresh] = owner.try_emplace(key, p, e);
+                const uint32_t q = it->second.first;
+                if (fresh || m_prisms[q].partner != kNoPartner) continue;
+                if (diagonals && (e != lp || it->second.second != longest(q))) continue;
+                if (try_pair(q, p, corners)) break;
+            }
         }
     }
     m_prims.clear();
