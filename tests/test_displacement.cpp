@@ -175,7 +175,8 @@ TEST(Displacement, ZeroAreaBaseTriangles) {
     d.field = std::make_shared<Heightfield>(hm, 0.05f, 0.f);
     d.tiling_u = d.tiling_v = 2;
     ShellShape shell(m, d, "degenerate");
-    EXPECT_EQ(shell.primitive_count(), 2u);  // only the rectangle's two triangles
+    EXPECT_EQ(shell.prism_count(), 2u);      // only the rectangle's two triangles
+    EXPECT_EQ(shell.primitive_count(), 1u);  // merged into one quad
     EmbreeAccel accel;
     accel.add(&shell);
     accel.commit();

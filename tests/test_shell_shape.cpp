@@ -21,13 +21,33 @@ struct SquareShell {
 };
 
 /// The square [-1, 1]^2 at z = 0, normal +z, uv = ((x + 1) / 2, (y + 1) / 2) + uv_shift,
-/// displaced by a W x H noise map of amplitude `amp`, tiled `tiling` times.
-SquareShell square_shell(int W, int H, float amp, float tiling, uint64_t seed, Vec2 uv_shift = Vec2(0.f, 0.f)) {
+/// displaced by a W x H noise map of amplitude `amp`, tiled `tiling` times; as `grid` x `grid`
+/// squares of two triangles each (diagonals alternating, a quad's two triangles not always
+/// consecutive in the index list).
+SquareShell square_shell(int W, int H, float amp, float tiling, uint64_t seed, Vec2 uv_shift = Vec2(0.f, 0.f),
+                         int grid = 1) {
     TriangleMesh m;
-    m.positions = {Vec3(-1, -1, 0), Vec3(1, -1, 0), Vec3(1, 1, 0), Vec3(-1, 1, 0)};
-    m.normals = {Vec3(0, 0, 1), Vec3(0, 0, 1), Vec3(0, 0, 1), Vec3(0, 0, 1)};
-    m.uvs = {Vec2(0, 0) + uv_shift, Vec2(1, 0) + uv_shift, Vec2(1, 1) + uv_shift, Vec2(0, 1) + uv_shift};
-    m.indices = {0, 1, 2, 0, 2, 3};
+    for (int j = 0; j <= grid; ++j)
+        for (int i = 0; i <= grid; ++i) {
+            const float u = float(i) / float(grid), v = float(j) / float(grid);
+            m.positions.push_back(Vec3(2.f * u - 1.f, 2.f * v - 1.f, 0.f));
+            m.normals.push_back(Vec3(0, 0, 1));
+            m.uvs.push_back(Vec2(u, v) + uv_shift);
+        }
+    std::vector<uint32_t> second;
+    for (int j = 0; j < grid; ++j)
+        for (int i = 0; i < grid; ++i) {
+            const uint32_t a = uint32_t(j * (grid + 1) + i), b = a + 1, c = a + uint32_t(grid + 1), d = c + 1;
+            if ((i + j) % 2 == 0) {
+                m.indices.insert(m.indices.end(), {a, b, d});
+                second.insert(second.end(), {a, d, c});
+            } else {
+                m.indices.insert(m.indices.end(), {a, b, c});
+                second.insert(second.end(), {b, d, c});
+            }
+        }
+    // The second triangles after all the first ones, in reverse (far from their partners).
+    for (size_t t = second.size() / 3; t-- > 0;) m.indices.insert(m.indices.end(), &second[3 * t], &second[3 * t + 3]);
     HeightMap map(W, H);
     PCG32 rng(seed);
     for (float &v : map.h) v = rng.next_float();
@@ -74,6 +94,7 @@ struct MappedFieldComparison {
     double sx, sy;  ///< cells per world unit
     int compared = 0, disagree = 0, grazes = 0;
     double worst = 0;
+    double tol = 1e-5;  ///< relative tolerance on t: |t_shell - t_field| <= tol (1 + t)
 
     explicit MappedFieldComparison(const SquareShell &s)
         : sq(s), sx(0.5 * s.W * s.tiling), sy(0.5 * s.H * s.tiling) {}
@@ -101,7 +122,7 @@ struct MappedFieldComparison {
         // Round-off: float ulps of the cell coordinates (up to 192 cells here, ulp 1.5e-5)
         // divided by the ray's slope against the surface; measured worst 2.6e-6 (1 + t) with
         // tetrahedra merged, 1.7e-6 without.
-        const double err = std::abs(double(ts) - h.t) / (1e-5 * (1 + double(h.t)));
+        const double err = std::abs(double(ts) - h.t) / (tol * (1 + double(h.t)));
         if (err > 1.0 && grazes_between(*sq.field, o, d, sx, sy, std::min(double(ts), double(h.t)),
                                         std::max(double(ts), double(h.t)))) {
             ++grazes;  // one of the two stopped at a tangential touch the other passed
@@ -302,4 +323,104 @@ TEST(ShellShape, OccludedAgreesWithTheClosestHit) {
     std::shared_ptr<const Heightfield> field;
     const auto curved = curved_shell(0.05f, 0.3f, 43, field);
     check_occlusion_matches_hits(*curved, 9, "curved grid");
+}
+
+// Flat quads (two one_map prisms with one map forming a convex quad) are one Embree primitive
+// clipped against the quad's edges: on a flat 5 x 5 grid every square merges, and hits equal
+// the mapped field's (an independent path without prisms) at height scales 0, 1e-6, 0.05 and
+// 1e4, for rays from above (up to 89.9 degrees from the normal, along the diagonals and
+// through grid vertices) and from the surface up and down.
+TEST(ShellShape, FlatGridMergesIntoQuadsThatMatchTheMappedField) {
+    for (const float amp : {0.f, 1e-6f, 0.05f, 1e4f}) {
+        const SquareShell sq = square_shell(40, 40, amp, 2.f, 51, Vec2(0.f, 0.f), 5);
+        EXPECT_EQ(sq.shape->prism_count(), 50u) << amp;
+        EXPECT_EQ(sq.shape->primitive_count(), 25u) << amp;
+        MappedFieldComparison cmp(sq);
+        // At 1e4 the walls rise 1e4 a cell: the two paths' cell coordinates differ by a few
+        // float ulps (1e-5 cells at 80 cells), which moves the height under a vertical ray by
+        // up to ~0.5, 5e-5 of t.
+        if (amp > 1.f) cmp.tol = 1e-4;
+        PCG32 rng(53);
+        const double above = double(sq.shape->shell_max()) + 0.1;
+        for (int k = 0; k < 12000; ++k) {
+            const int kind = k % 4;
+            double theta = std::acos(1 - rng.next_double() * (1 - std::cos(85.0 * M_PI / 180))),
+                   phi = 2 * M_PI * rng.next_double();
+            double px = -0.9 + 1.8 * rng.next_double(), py = -0.9 + 1.8 * rng.next_double();
+            if (kind == 0) theta = (85.0 + 4.9 * rng.next_double()) * M_PI / 180;  // up to 89.9 degrees
+            // Walls 1e4 high over cells 1/40 wide: a slanted ray's hit there depends on its
+            // cell-space position to 1e4 x float round-off, in both paths; vertical rays'
+            // hits (the height at a point) do not.
+            if (amp > 1.f) theta = 0.0;
+            if (kind == 1) {  // on a grid line or a diagonal, or through a grid vertex
+                const double gx = -1.0 + 0.4 * std::floor(rng.next_double() * 5.0);
+                const double r = rng.next_double();
+                if (r < 0.3) px = gx;
+                else if (r < 0.6) py = px + (gx + 1.0);
+                else px = gx, py = -1.0 + 0.4 * std::floor(rng.next_double() * 5.0);
+                if (r >= 0.3 && r < 0.6) phi = rng.next_double() < 0.5 ? M_PI / 4 : 5 * M_PI / 4;
+            }
+            Vec3 d = direction(theta, phi);
+            const double s = above / std::max(std::cos(theta), 1e-3);
+            Vec3 o(float(px - s * d.x), float(py - s * d.y), float(-s * d.z));
+            if (kind == 3) {  // from the surface: off the first hit, up (mirrored) or on down
+                float t;
+                if (!shell_hit(*sq.shape, o, d, t)) continue;
+                const bool up = rng.next_float() < 0.6f;
+                const float off = 2e-5f * std::max(1.f, amp);
+                o = o + d * t + Vec3(0.f, 0.f, up ? off : -off);
+                if (up) d = Vec3(d.x, d.y, -d.z);
+            }
+            cmp.add(o, d);
+        }
+        cmp.expect_agreement(5000, 100, amp, "grid of quads vs field; the 'tiling' printed is the height scale; units tol");
+    }
+}
+
+// Pairs that must not merge: a flat dart (two triangles with one map whose union is not
+// convex) stays two primitives, rays down into its notch miss and rays into either triangle
+// hit at the field's height; prisms of a curved grid (different maps) stay one a primitive.
+TEST(ShellShape, NonConvexAndCurvedPairsStaySeparate) {
+    TriangleMesh m;
+    // Cell-space dart (0, 0) (2, 1) (0, 2) (0.5, 1), reflex at (0.5, 1), as (x - 1, y - 1).
+    m.positions = {Vec3(-1, -1, 0), Vec3(1, 0, 0), Vec3(-1, 1, 0), Vec3(-0.5f, 0, 0)};
+    m.normals.assign(4, Vec3(0, 0, 1));
+    for (const Vec3 &p : m.positions) m.uvs.push_back(Vec2((p.x + 1) / 2, (p.y + 1) / 2));
+    m.indices = {0, 1, 3, 3, 1, 2};
+    HeightMap map(16, 16);
+    PCG32 rng(61);
+    for (float &v : map.h) v = rng.next_float();
+    Displacement disp;
+    disp.field = std::make_shared<Heightfield>(map, 0.05f, 0.f);
+    const ShellShape dart(m, disp, "dart");
+    EXPECT_EQ(dart.prism_count(), 2u);
+    EXPECT_EQ(dart.primitive_count(), 2u);
+    int hits = 0, notch = 0;
+    for (int k = 0; k < 4000; ++k) {
+        const float x = -1.f + 2.f * rng.next_float(), y = -1.f + 2.f * rng.next_float();
+        float t;
+        const bool hit = shell_hit(dart, Vec3(x, y, 1.f), Vec3(0, 0, -1), t);
+        // Inside the dart: within both triangles' union, 1e-3 away from its edges.
+        auto side = [&](float ax, float ay, float bx, float by) { return (bx - ax) * (y - ay) - (by - ay) * (x - ax); };
+        const bool in1 = side(-1, -1, 1, 0) > 1e-3f && side(1, 0, -0.5f, 0) > 1e-3f && side(-0.5f, 0, -1, -1) > 1e-3f;
+        const bool in2 = side(-0.5f, 0, 1, 0) > 1e-3f && side(1, 0, -1, 1) > 1e-3f && side(-1, 1, -0.5f, 0) > 1e-3f;
+        // In the notch: inside the convex hull (0, 0) (2, 1) (0, 2) but left of the dart's reflex edges.
+        const bool in_hull = side(-1, -1, 1, 0) > 1e-3f && side(1, 0, -1, 1) > 1e-3f && x > -1.f + 1e-3f;
+        const bool in_notch = in_hull && side(-0.5f, 0, -1, -1) < -1e-3f && side(-1, 1, -0.5f, 0) < -1e-3f;
+        if (in1 || in2) {
+            ASSERT_TRUE(hit) << x << " " << y;
+            const float h = disp.field->eval((x + 1.0) * 8.0, (y + 1.0) * 8.0);
+            EXPECT_NEAR(1.f - t, h, 1e-5f) << x << " " << y;
+            ++hits;
+        }
+        if (in_notch) {
+            EXPECT_FALSE(hit) << "a hit in the notch at " << x << " " << y;
+            ++notch;
+        }
+    }
+    EXPECT_GT(hits, 1000);
+    EXPECT_GT(notch, 100);
+    std::shared_ptr<const Heightfield> field;
+    const auto curved = curved_shell(0.05f, 0.3f, 43, field);
+    EXPECT_EQ(curved->primitive_count(), curved->prism_count());
 }

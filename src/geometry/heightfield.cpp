@@ -182,6 +182,12 @@ bool patch_root(double lox, double loy, double loz, Vec3 d, float h00, float h10
     const double C = oh - h00 - e * ox - f * oy - g * ox * oy;
     const double smax = double(t1) - double(t0);
     auto F = [&](double s) { return (A * s + B) * s + C; };
+    // No root: F has one strict sign at both ends and is monotone in between (F' = 2 A s + B,
+    // linear, of one strict sign at both ends), most of the cells a ray passes over. No sqrt
+    // or division then. A root the closed form would place within round-off inside an end
+    // lies within the neighbouring cell's one-ulp overlap, which finds it.
+    const double f_end = F(smax);
+    if (C * f_end > 0.0 && B * (2.0 * A * smax + B) > 0.0) return false;
 
     double roots[2];
     int n = 0;
@@ -206,7 +212,7 @@ bool patch_root(double lox, double loy, double loz, Vec3 d, float h00, float h10
         }
     // Round-off guard: a sign change of F over [0, smax] is a crossing the closed form
     // missed (roots a hair outside the interval). Take the root nearest the interval.
-    const double f0 = F(0.0), f1 = F(smax);
+    const double f0 = F(0.0), f1 = f_end;
     if ((f0 <= 0.0 && f1 >= 0.0) || (f0 >= 0.0 && f1 <= 0.0)) {
         double best = 0.0, dist = Infinity;
         for (int k = 0; k < n; ++k) {
@@ -253,19 +259,28 @@ struct PyramidNode {
     int level, i, j;
 };
 
-/// The nodes still to visit in the current tile, depth first: the top one is popped next. A
-/// step pushes at most 16 nodes (a 4 x 4 block) and goes down at least one level.
-struct NodeStack {
-    PyramidNode nodes[16 * 32 + 4];
-    int size = 0;
-    void push(const PyramidNode &n) { nodes[size++] = n; }
-    PyramidNode pop() { return nodes[--size]; }
-    bool empty() const { return size == 0; }
-};
-
 /// The ncols x nrows nodes of `level` from (i0, j0) (at most 4 x 4, all of which exist).
 struct NodeBlock {
     int level, i0, j0, ncols, nrows;
+};
+
+/// The nodes still to visit in the current tile, depth first, kept as blocks with the bits of
+/// their nodes still to visit (block_overlap's mask; the lowest bit of the top block is
+/// visited next): one entry a tested block instead of one a node that passed, most of which a
+/// closest hit never reaches. A step adds at most one block and goes down at least one level,
+/// and a block stays only while it has bits, so the levels decrease up the stack: at most one
+/// entry a level (32 levels at most, the sizes being ints).
+struct NodeStack {
+    struct Entry {
+        NodeBlock b;
+        int mask;
+    };
+    Entry e[34];
+    int size = 0;
+    void push(const NodeBlock &b, int mask) {
+        if (mask) e[size++] = {b, mask};
+    }
+    bool empty() const { return size == 0; }
 };
 
 /// Position of the 2D DDA over the W x H tile grid.
@@ -321,10 +336,12 @@ inline double tile_exit_t(int64_t tile, int step, int64_t size, int64_t off, dou
     return (boundary - p0) / dir;
 }
 
-/// Narrows [c0, c1] to the t where l + t dd lies in [0, 1] (one axis of a cell).
-inline void clip_to_unit(double l, double dd, double &c0, double &c1) {
+/// Narrows [c0, c1] to the t where l + t dd lies in [0, 1] (one axis of a cell); inv_dd =
+/// 1 / dd in double (a product instead of two divisions a leaf; neighbouring cells still get
+/// bitwise the same boundary: 1 - l here is -l' there, times the same inv_dd).
+inline void clip_to_unit(double l, double dd, double inv_dd, double &c0, double &c1) {
     if (dd != 0.0) {
-        double u = -l / dd, v = (1.0 - l) / dd;
+        double u = -l * inv_dd, v = (1.0 - l) * inv_dd;
         if (u > v) std::swap(u, v);
         c0 = std::max(c0, u);
         c1 = std::min(c1, v);
@@ -344,6 +361,7 @@ struct Heightfield::Traversal {
     const Heightfield &f;
     Vec3 o, d;
     float inv[3];         ///< 1/d, tiny-safe
+    double inv_dx, inv_dy;  ///< 1/d.x, 1/d.y in double (0 where d is 0) for the leaves' cell clip
     float tmin, tmax;     ///< clipped to the field's height slab by clip_to_height_slab
     int64_t ox, oy;       ///< the caller's integer cell offset
     bool flip_x, flip_y;  ///< the ray runs towards -x, -y: a block's columns, rows are visited last to first
@@ -361,6 +379,8 @@ struct Heightfield::Traversal {
         inv[0] = safe_inv(d.x);
         inv[1] = safe_inv(d.y);
         inv[2] = safe_inv(d.z);
+        inv_dx = d.x != 0.f ? 1.0 / double(d.x) : 0.0;
+        inv_dy = d.y != 0.f ? 1.0 / double(d.y) : 0.0;
         flip_x = d.x < 0;
         flip_y = d.y < 0;
     }
@@ -395,6 +415,24 @@ struct Heightfield::Traversal {
         w.tnx = tile_exit_t(w.tx, w.stepx, f.m_w, ox, o.x, d.x);
         w.tny = tile_exit_t(w.ty, w.stepy, f.m_h, oy, o.y, d.y);
         return w;
+    }
+
+    /// Whether the ray between tmin and tmax stays inside one tile, by a margin far above the
+    /// walk's double round-off (the common case of a shell segment): then `w` gets that tile,
+    /// which start_tile_walk would start in and never leave, without its divisions.
+    bool single_tile(TileWalk &w) const {
+        const int64_t qx = floor_div(ox, f.m_w), qy = floor_div(oy, f.m_h);
+        const double bx = double(ox - qx * f.m_w) + double(o.x), by = double(oy - qy * f.m_h) + double(o.y);
+        const double x0 = bx + double(tmin) * d.x, x1 = bx + double(tmax) * d.x;
+        const double y0 = by + double(tmin) * d.y, y1 = by + double(tmax) * d.y;
+        const double mx = 1e-6 * (1.0 + std::abs(bx)), my = 1e-6 * (1.0 + std::abs(by));
+        const double W = f.m_w, H = f.m_h;
+        if (!(std::min(x0, x1) >= mx && std::max(x0, x1) <= W - mx && std::min(y0, y1) >= my &&
+              std::max(y0, y1) <= H - my))
+            return false;
+        w.tx = qx;
+        w.ty = qy;
+        return true;
     }
 
     /// Moves the walk into the next tile along the ray (the nearer of the two boundaries).
@@ -444,17 +482,18 @@ struct Heightfield::Traversal {
         return {k, i0, j0, i1 - i0 + 1, j1 - j0 + 1};
     }
 
-    /// The nodes of `b` whose bit is set in `mask` (bit c' + 4 r': the node visited c'-th in
-    /// its row, r'-th row; see block_overlap), pushed back to front so that the one the ray
-    /// enters first is popped first. A ray visits the cells it crosses in this order: it moves
-    /// monotonically in x and y, so of two cells it crosses the one in an earlier row (in its
-    /// y direction), or in the same row and an earlier column, comes first.
-    void push_block(const NodeBlock &b, int mask, NodeStack &stack) const {
-        while (mask) {
-            const int q = 31 - __builtin_clz(unsigned(mask));
-            mask ^= 1 << q;
-            stack.push(block_node(b, q));
-        }
+    /// The next node to visit, taken off the stack: the lowest bit of the top block's mask (bit
+    /// c' + 4 r': the node visited c'-th in its row, r'-th row; see block_overlap), so that of
+    /// a block's nodes the one the ray enters first comes first. A ray visits the cells it
+    /// crosses in this order: it moves monotonically in x and y, so of two cells it crosses
+    /// the one in an earlier row (in its y direction), or in the same row and an earlier
+    /// column, comes first.
+    PyramidNode pop_node(NodeStack &stack) const {
+        NodeStack::Entry &t = stack.e[stack.size - 1];
+        const PyramidNode nd = block_node(t.b, __builtin_ctz(unsigned(t.mask)));
+        t.mask &= t.mask - 1;
+        if (!t.mask) --stack.size;
+        return nd;
     }
 
     /// The node of `b` at bit q of block_overlap's mask.
@@ -515,8 +554,8 @@ struct Heightfield::Traversal {
         cell.lx = double(o.x) - double(x0);
         cell.ly = double(o.y) - double(y0);
         double c0 = tmin, c1 = tmax;
-        clip_to_unit(cell.lx, d.x, c0, c1);
-        clip_to_unit(cell.ly, d.y, c0, c1);
+        clip_to_unit(cell.lx, d.x, inv_dx, c0, c1);
+        clip_to_unit(cell.ly, d.y, inv_dy, c0, c1);
         if (!(c1 >= c0)) return false;
         const float s0 = std::max(next_down(float(c0)), tmin);
         const float s1 = std::min(next_up(float(c1)), tmax);
@@ -545,7 +584,7 @@ struct Heightfield::Traversal {
     }
 
     /// Bit c' + 4 r' set: the node visited c'-th in its row, r'-th row (columns and rows of
-    /// `b` in the ray's x and y directions; push_block maps bits to nodes) exists and
+    /// `b` in the ray's x and y directions; block_node maps bits to nodes) exists and
     /// node_overlaps holds for it. mm: 32 floats as in Level::blocks (mins, then maxes; row r
     /// of the block at 4 r) holding b's nodes from its corner. The SSE path computes
     /// node_overlaps' formula for four nodes of a row at once with the same float operations
@@ -613,16 +652,14 @@ struct Heightfield::Traversal {
     /// block, a level-1 node's children): its heights gathered.
     int gathered_overlap(const NodeBlock &b, const TileSegment &s) const {
         const Level &L = f.m_levels[b.level];
+        // Only the rows that exist are read, and lanes past ncols are masked: each is written
+        // once (zeroing all 32 first compiled to a rep stos, slow to start).
         alignas(16) float mm[32];
-#if defined(__SSE2__)
-        for (int k = 0; k < 32; k += 4) _mm_store_ps(mm + k, _mm_setzero_ps());  // not rep stos
-#else
-        std::fill(mm, mm + 32, 0.f);
-#endif
         for (int r = 0; r < b.nrows; ++r)
-            for (int c = 0; c < b.ncols; ++c) {
-                mm[4 * r + c] = L.min_at(b.i0 + c, b.j0 + r);
-                mm[16 + 4 * r + c] = L.max_at(b.i0 + c, b.j0 + r);
+            for (int c = 0; c < 4; ++c) {
+                const bool in = c < b.ncols;
+                mm[4 * r + c] = in ? L.min_at(b.i0 + c, b.j0 + r) : 0.f;
+                mm[16 + 4 * r + c] = in ? L.max_at(b.i0 + c, b.j0 + r) : 0.f;
             }
         return block_overlap(b, mm, s);
     }
@@ -634,31 +671,22 @@ struct Heightfield::Traversal {
         return block_overlap(b, f.m_levels[b.level].block(nd.i, nd.j), s);
     }
 
-    /// The first hit in the tile segment `s`. Reference: a node is tested when popped and all
-    /// the nodes of the block below it are pushed. Simd: the start block is tested at once,
-    /// and below it the block under a node is tested together when the node is popped; only
-    /// those that pass are pushed. Both visit the same leaves in the same order.
+    /// The first hit in the tile segment `s`. Reference: a node is tested when popped and the
+    /// block below it is pushed with all its nodes. Simd: the start block is tested at once,
+    /// and below it the block under a node is tested together when the node is popped; it is
+    /// pushed with the nodes that pass. Both visit the same leaves in the same order.
     template <bool AnyHit, bool Simd>
     bool trace_tile(const TileSegment &s, HeightfieldHit *hit) const {
         NodeStack stack;
         const NodeBlock start = start_block(s);
-        push_block(start, Simd ? gathered_overlap(start, s) : block_exist(start), stack);
+        stack.push(start, Simd ? gathered_overlap(start, s) : block_exist(start));
         float x0, y0;
-        PyramidNode nd;
-        bool next = false;  // Simd: nd is the front node of the block just tested (not pushed)
-        while (next || !stack.empty()) {
-            if (!next) nd = stack.pop();
-            next = false;
+        while (!stack.empty()) {
+            const PyramidNode nd = pop_node(stack);
             if constexpr (Simd) {
                 if (nd.level > 0) {
                     const NodeBlock b = below(nd);
-                    const int mask = below_overlap(nd, b, s);
-                    if (!mask) continue;
-                    // The front node is visited next: taken at once instead of pushed and popped.
-                    const int q = __builtin_ctz(unsigned(mask));
-                    push_block(b, mask ^ (1 << q), stack);
-                    nd = block_node(b, q);
-                    next = true;
+                    stack.push(b, below_overlap(nd, b, s));
                     continue;
                 }
                 x0 = s.tile_x + float(nd.i);
@@ -667,7 +695,7 @@ struct Heightfield::Traversal {
                 if (!node_overlaps(nd, s, x0, y0)) continue;
                 if (nd.level > 0) {
                     const NodeBlock b = below(nd);
-                    push_block(b, block_exist(b), stack);
+                    stack.push(b, block_exist(b));
                     continue;
                 }
             }
@@ -687,8 +715,10 @@ bool Heightfield::traverse(Vec3 o, Vec3 d, float tmin, float tmax, HeightfieldHi
     if (m_levels.empty() || !(tmax > tmin)) return false;
     Traversal tr(*this, o, d, tmin, tmax, ox, oy);
     if (!tr.clip_to_height_slab()) return false;
+    TileWalk walk;
+    if (tr.single_tile(walk)) return tr.trace_tile<AnyHit, Simd>(tr.tile_segment(walk, tr.tmin, tr.tmax), hit);
     // Tiles crossed by the ray between tmin and tmax (2D DDA on the W x H tile grid).
-    TileWalk walk = tr.start_tile_walk();
+    walk = tr.start_tile_walk();
     double t_tile0 = tr.tmin;
     for (int guard = 0; guard < (1 << 22); ++guard) {
         const double t_tile1 = std::min(double(tr.tmax), std::min(walk.tnx, walk.tny));

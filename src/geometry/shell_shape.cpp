@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <unordered_map>
 #include <emmintrin.h>
 #include <fmt/format.h>
 #include "core/error.h"
@@ -140,7 +141,7 @@ uint8_t ShellShape::shared_maps(const Prism &P, const double wv[6][3], const dou
     return bits;
 }
 
-/// Prism::one_map and bary: the base triangle's barycentric coordinates as affine functions
+/// Prism::one_map and edges: the base triangle's barycentric coordinates as affine functions
 /// of cell-space (x, y) (tv: the prism's cell-space vertices, 0..2 the bottom ones).
 void ShellShape::set_one_map(Prism &P, const double tv[6][3]) {
     if (P.same_map != 7) return;
@@ -150,14 +151,15 @@ void ShellShape::set_one_map(Prism &P, const double tv[6][3]) {
     if (!(std::abs(det) > 1e-6 * scale * scale) || !std::isfinite(det)) return;
     const double e[2][2] = {{(y1 - y2) / det, (x2 - x1) / det}, {(y2 - y0) / det, (x0 - x2) / det}};
     for (int k = 0; k < 2; ++k) {
-        P.bary[0][k] = float(e[k][0]);
-        P.bary[1][k] = float(e[k][1]);
-        P.bary[2][k] = float(-(e[k][0] * x2 + e[k][1] * y2));
+        P.edges[0][k] = float(e[k][0]);
+        P.edges[1][k] = float(e[k][1]);
+        P.edges[2][k] = float(-(e[k][0] * x2 + e[k][1] * y2));
     }
-    // lambda_2 = 1 - lambda_0 - lambda_1.
-    P.bary[0][2] = float(-(e[0][0] + e[1][0]));
-    P.bary[1][2] = float(-(e[0][1] + e[1][1]));
-    P.bary[2][2] = float(1.0 + e[0][0] * x2 + e[0][1] * y2 + e[1][0] * x2 + e[1][1] * y2);
+    // lambda_2 = 1 - lambda_0 - lambda_1; lane 3 repeats lambda_0.
+    P.edges[0][2] = float(-(e[0][0] + e[1][0]));
+    P.edges[1][2] = float(-(e[0][1] + e[1][1]));
+    P.edges[2][2] = float(1.0 + e[0][0] * x2 + e[0][1] * y2 + e[1][0] * x2 + e[1][1] * y2);
+    for (int r = 0; r < 3; ++r) P.edges[r][3] = P.edges[r][0];
     P.one_map = true;
 }
 
@@ -191,6 +193,7 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
     m_inv_thick = 1.f / (m_hmax - m_hmin);
 
     std::vector<float> areas;
+    std::vector<PrismCorners> corners;
     m_prisms.reserve(ntri);
     const double cw = double(m_disp.field->width()) * m_disp.tiling_u, ch = double(m_disp.field->height()) * m_disp.tiling_v;
     for (size_t t = 0; t < ntri; ++t) {
@@ -243,6 +246,10 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
         if (!P.valid) continue;
         P.same_map = shared_maps(P, wv, tv);
         set_one_map(P, tv);
+        PrismCorners &pc = corners.emplace_back();
+        std::copy(&wv[0][0], &wv[0][0] + 18, &pc.wv[0][0]);
+        std::copy(&tv[0][0], &tv[0][0] + 18, &pc.tv[0][0]);
+        for (int k = 0; k < 3; ++k) pc.weld[k] = weld[v[k]];
         m_prisms.push_back(P);
         m_prism_tri.push_back(uint32_t(t));
         areas.push_back(area);
@@ -250,16 +257,136 @@ ShellShape::ShellShape(const TriangleMesh &base, Displacement disp, std::string 
     }
     if (m_prisms.empty()) throw MesoError(fmt::format("{}: the displaced mesh has no triangle with an area", m_name));
     m_area_distr = Distribution1D(areas);
+    pair_prisms(corners);
 }
 
-void ShellShape::prism_bounds(uint32_t prism, float lo[3], float hi[3]) const {
-    const uint32_t t = m_prism_tri[prism];
-    Vec3 l(Infinity, Infinity, Infinity), h(-Infinity, -Infinity, -Infinity);
+namespace {
+
+/// The edge functions of the quad v0 v1 v2 v3 (cell-space x, y; the triangles v0 v1 v3 and
+/// v1 v2 v3 share the diagonal v1 v3) as Prism::edges: e_k >= 0 on the inner side of edge
+/// v_k v_k+1, scaled to 1 at the vertex farthest from it. False unless v0 and v2 lie on
+/// opposite sides of the diagonal and the quad is convex (every vertex inside every edge, to
+/// 1e-7 of the scale: a sliver far below the clip's 1e-5 pad).
+bool quad_edges(const double v[4][2], float edges[3][4]) {
+    auto cross = [&](int a, int b, int c) {
+        return (v[b][0] - v[a][0]) * (v[c][1] - v[a][1]) - (v[b][1] - v[a][1]) * (v[c][0] - v[a][0]);
+    };
+    const double s0 = cross(1, 3, 0), s2 = cross(1, 3, 2);
+    if (!(s0 * s2 < 0.0)) return false;
+    const double orient = s0 > 0.0 ? 1.0 : -1.0;  // +1: v0 v1 v2 v3 counter-clockwise
+    for (int k = 0; k < 4; ++k) {
+        const int k1 = (k + 1) % 4;
+        // e(x, y) = orient * ((v_k1 - v_k) x ((x, y) - v_k)) = a x + b y + c.
+        const double ex = v[k1][0] - v[k][0], ey = v[k1][1] - v[k][1];
+        const double a = -orient * ey, b = orient * ex, c = orient * (ey * v[k][0] - ex * v[k][1]);
+        double hi = 0.0, lo = 0.0;
+        for (int j = 0; j < 4; ++j) {
+            const double val = a * v[j][0] + b * v[j][1] + c;
+            hi = std::max(hi, val);
+            lo = std::min(lo, val);
+        }
+        if (!(hi > 0.0) || !std::isfinite(hi) || lo < -1e-7 * hi) return false;
+        edges[0][k] = float(a / hi);
+        edges[1][k] = float(b / hi);
+        edges[2][k] = float(c / hi);
+    }
+    return true;
+}
+
+}  // namespace
+
+void ShellShape::pair_prisms(const std::vector<PrismCorners> &corners) {
+    // Two passes over base edges (welded). First, prisms pair across an edge that is the
+    // longest (in cell space) of both: the diagonal of a triangulated rectangle, whatever the
+    // order of the triangles. Then a prism pairs with the first unpaired neighbour it can.
+    auto longest = [&](uint32_t p) {
+        const double(*t)[3] = corners[p].tv;
+        int best = 0;
+        double len = -1.0;
+        for (int e = 0; e < 3; ++e) {
+            const double l = sqr(t[(e + 1) % 3][0] - t[e][0]) + sqr(t[(e + 1) % 3][1] - t[e][1]);
+            if (l > len) len = l, best = e;
+        }
+        return best;
+    };
+    for (const bool diagonals : {true, false}) {
+        std::unordered_map<uint64_t, std::pair<uint32_t, int>> owner;  // edge -> (prism, its edge)
+        owner.reserve(m_prisms.size() * 2);
+        for (uint32_t p = 0; p < uint32_t(m_prisms.size()); ++p) {
+            if (!m_prisms[p].one_map || m_prisms[p].partner != kNoPartner) continue;
+            const uint32_t *w = corners[p].weld;
+            const int lp = diagonals ? longest(p) : -1;
+            for (int e = 0; e < 3; ++e) {
+                const uint32_t a = w[e], b = w[(e + 1) % 3];
+                const uint64_t key = uint64_t(std::min(a, b)) << 32 | std::max(a, b);
+                const auto [it, fresh] = owner.try_emplace(key, p, e);
+                const uint32_t q = it->second.first;
+                if (fresh || m_prisms[q].partner != kNoPartner) continue;
+                if (diagonals && (e != lp || it->second.second != longest(q))) continue;
+                if (try_pair(q, p, corners)) break;
+            }
+        }
+    }
+    m_prims.clear();
+    for (uint32_t p = 0; p < uint32_t(m_prisms.size()); ++p)
+        if (m_prisms[p].partner == kNoPartner || m_prisms[p].partner > p) m_prims.push_back(p);
+}
+
+/// Pairs prisms a < b (both one_map, sharing a base edge) into a quad if b's corners lie where
+/// a's map takes them (within shared_maps' tolerance) and the two base triangles make a
+/// convex quad in cell space; then a's edges become the quad's.
+bool ShellShape::try_pair(uint32_t a, uint32_t b, const std::vector<PrismCorners> &corners) {
+    Prism &A = m_prisms[a], &B = m_prisms[b];
+    const PrismCorners &ca = corners[a], &cb = corners[b];
+    if (!A.one_map || !B.one_map) return false;
+    // b's cell-space corners relative to a's cell origin.
+    double tb[6][3];
+    const double sx = double(B.ox - A.ox), sy = double(B.oy - A.oy);
+    double extent = 1.0;
+    for (int v = 0; v < 6; ++v) {
+        tb[v][0] = cb.tv[v][0] + sx, tb[v][1] = cb.tv[v][1] + sy, tb[v][2] = cb.tv[v][2];
+        for (int c = 0; c < 3; ++c) extent = std::max({extent, std::abs(tb[v][c]), std::abs(ca.tv[v][c])});
+    }
+    const double tol = 8.0 * 0x1p-24 * extent;
+    for (int v = 0; v < 6; ++v) {
+        double c[3];
+        map_to_cell(A.tet[0], cb.wv[v], c);
+        for (int i = 0; i < 3; ++i)
+            if (!(std::abs(c[i] - tb[v][i]) <= tol)) return false;
+    }
+    // The quad: a's vertex off the shared edge (m), one shared end (i), b's vertex off it (q),
+    // the other shared end (j).
+    int m = -1, q = -1;
     for (int k = 0; k < 3; ++k) {
-        uint32_t vi = m_base.indices[3 * t + k];
-        Vec3 a = m_base.positions[vi] + m_base.normals[vi] * m_hmin, b = m_base.positions[vi] + m_base.normals[vi] * m_hmax;
-        l = vmin(l, vmin(a, b));
-        h = vmax(h, vmax(a, b));
+        if (std::find(cb.weld, cb.weld + 3, ca.weld[k]) == cb.weld + 3) m = k;
+        if (std::find(ca.weld, ca.weld + 3, cb.weld[k]) == ca.weld + 3) q = k;
+    }
+    if (m < 0 || q < 0) return false;
+    const double quad[4][2] = {{ca.tv[m][0], ca.tv[m][1]},
+                               {ca.tv[(m + 1) % 3][0], ca.tv[(m + 1) % 3][1]},
+                               {tb[q][0], tb[q][1]},
+                               {ca.tv[(m + 2) % 3][0], ca.tv[(m + 2) % 3][1]}};
+    float e[3][4];
+    if (!quad_edges(quad, e)) return false;
+    std::copy(&e[0][0], &e[0][0] + 12, &A.edges[0][0]);
+    A.partner = b;
+    B.partner = a;
+    return true;
+}
+
+void ShellShape::prism_bounds(uint32_t prim, float lo[3], float hi[3]) const {
+    const uint32_t prism = m_prims[prim], partner = m_prisms[prism].partner;
+    Vec3 l(Infinity, Infinity, Infinity), h(-Infinity, -Infinity, -Infinity);
+    for (const uint32_t p : {prism, partner}) {
+        if (p == kNoPartner) continue;
+        const uint32_t t = m_prism_tri[p];
+        for (int k = 0; k < 3; ++k) {
+            uint32_t vi = m_base.indices[3 * t + k];
+            Vec3 a = m_base.positions[vi] + m_base.normals[vi] * m_hmin,
+                 b = m_base.positions[vi] + m_base.normals[vi] * m_hmax;
+            l = vmin(l, vmin(a, b));
+            h = vmax(h, vmax(a, b));
+        }
     }
     // Padded by the relative size the tetrahedron clip is padded by.
     Vec3 pad = (h - l) * 1e-4f + vabs(l) * 1e-6f + Vec3(1e-20f, 1e-20f, 1e-20f);
@@ -327,29 +454,28 @@ bool ShellShape::clip_prism(const Prism &P, Vec3 o, Vec3 d, float &t0, float &t1
     const Tet &T = P.tet[0];
     const Vec3 c = Vec3(T.t0[0], T.t0[1], T.t0[2]) + mul3(T.A, o - Vec3(T.w0[0], T.w0[1], T.w0[2]));
     const Vec3 cd = mul3(T.A, d);
-    // Five coordinates that are >= 0 inside the prism, along the ray n_k + t s_k: the three
-    // barycentrics of the base triangle and the height above the bottom and below the top
-    // (in units of the shell's thickness), padded like clip() pads a tetrahedron's. Lanes
-    // (lambda_0, lambda_1, lambda_2, above the bottom), then below the top four times.
+    // Six coordinates that are >= 0 inside the prism, along the ray n_k + t s_k: the four edge
+    // functions of the base (Prism::edges: a triangle's barycentrics or a quad's edges) and
+    // the height above the bottom and below the top (in units of the shell's thickness),
+    // padded like clip() pads a tetrahedron's. Lanes: the edges; then (above the bottom, below
+    // the top) twice.
     const float inv_thick = m_inv_thick;
-    const __m128 bx = _mm_loadu_ps(P.bary[0]), by = _mm_loadu_ps(P.bary[1]), bc = _mm_loadu_ps(P.bary[2]);
-    const __m128 hz = _mm_setr_ps(0.f, 0.f, 0.f, inv_thick);
-    const __m128 n = _mm_add_ps(_mm_add_ps(_mm_mul_ps(bx, _mm_set1_ps(c.x)), _mm_mul_ps(by, _mm_set1_ps(c.y))),
-                                _mm_add_ps(bc, _mm_mul_ps(hz, _mm_set1_ps(c.z - m_hmin))));
-    const __m128 s = _mm_add_ps(_mm_add_ps(_mm_mul_ps(bx, _mm_set1_ps(cd.x)), _mm_mul_ps(by, _mm_set1_ps(cd.y))),
-                                _mm_mul_ps(hz, _mm_set1_ps(cd.z)));
-    const float top = (m_hmax - c.z) * inv_thick;
-    const float nmax = std::max({1.f, max_abs_lane(n), std::abs(top)});
+    const __m128 bx = _mm_loadu_ps(P.edges[0]), by = _mm_loadu_ps(P.edges[1]), bc = _mm_loadu_ps(P.edges[2]);
+    const __m128 n = _mm_add_ps(_mm_add_ps(_mm_mul_ps(bx, _mm_set1_ps(c.x)), _mm_mul_ps(by, _mm_set1_ps(c.y))), bc);
+    const __m128 s = _mm_add_ps(_mm_mul_ps(bx, _mm_set1_ps(cd.x)), _mm_mul_ps(by, _mm_set1_ps(cd.y)));
+    const float above = (c.z - m_hmin) * inv_thick, below = (m_hmax - c.z) * inv_thick, dz = cd.z * inv_thick;
+    const __m128 nh = _mm_setr_ps(above, below, above, below), sh = _mm_setr_ps(dz, -dz, dz, -dz);
+    const float nmax = std::max({1.f, max_abs_lane(n), std::abs(above), std::abs(below)});
     const __m128 eps = _mm_set1_ps(1e-5f + 1e-6f * nmax);
     __m128 a, b, a2, b2;
-    if (!lane_bounds(n, s, eps, a, b) || !lane_bounds(_mm_set1_ps(top), _mm_set1_ps(-cd.z * inv_thick), eps, a2, b2))
-        return false;
+    if (!lane_bounds(n, s, eps, a, b) || !lane_bounds(nh, sh, eps, a2, b2)) return false;
     return narrow(_mm_max_ps(a, a2), _mm_min_ps(b, b2), t0, t1);
 }
 
 template <bool AnyHit>
-bool ShellShape::trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float tfar, float *t_hit, uint32_t *tet,
+bool ShellShape::trace_prism(uint32_t prim, Vec3 o, Vec3 d, float tnear, float tfar, float *t_hit, uint32_t *tet,
                              float *x, float *y) const {
+    const uint32_t prism = m_prims[prim];
     const Prism &P = m_prisms[prism];
     struct Seg {
         float t0, t1;
@@ -357,7 +483,7 @@ bool ShellShape::trace_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float 
     } seg[3];
     int ns = 0;
     if (P.one_map) {
-        // One clip of the whole prism in cell space; traced through tetrahedron 0's map.
+        // One clip of the whole prism (or quad) in cell space; traced through tetrahedron 0's map.
         float a = tnear, b = tfar;
         if (!clip_prism(P, o, d, a, b)) return false;
         seg[ns++] = {a, b, 0};
@@ -436,7 +562,7 @@ bool ShellShape::occluded_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, flo
 
 RTCGeometry ShellShape::build_embree(RTCDevice device) const {
     RTCGeometry g = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_USER);
-    rtcSetGeometryUserPrimitiveCount(g, unsigned(m_prisms.size()));
+    rtcSetGeometryUserPrimitiveCount(g, unsigned(m_prims.size()));
     rtcSetGeometryUserData(g, const_cast<ShellShape *>(this));
     rtcSetGeometryBoundsFunction(g, bounds_cb, nullptr);
     rtcSetGeometryIntersectFunction(g, intersect_cb);
@@ -507,14 +633,15 @@ PositionSample ShellShape::sample_area(float u_prim, Vec2 u) const {
 
 size_t ShellShape::memory_bytes() const {
     // Prisms + Embree's BVH over them (~64 B a primitive) + base mesh + heightfield.
-    return m_prisms.size() * (sizeof(Prism) + sizeof(uint32_t) + 64 + 4) + m_base.memory_bytes() +
+    return m_prisms.size() * (sizeof(Prism) + sizeof(uint32_t) + 4) + m_prims.size() * (sizeof(uint32_t) + 64) +
+           m_base.memory_bytes() +
            m_disp.field->memory_bytes();
 }
 
 std::string ShellShape::to_string() const {
-    return fmt::format("{} (shell map: {} prisms over {} base triangles; map {}x{} '{}' tiled {}x{}, heights [{:.4g}, "
+    return fmt::format("{} (shell map: {} prisms over {} base triangles, {} Embree primitives; map {}x{} '{}' tiled {}x{}, heights [{:.4g}, "
                        "{:.4g}]; geometry {:.1f} MiB, of it heightfield {:.1f} MiB)",
-                       m_name, m_prisms.size(), m_base.triangle_count(), m_disp.field->width(), m_disp.field->height(),
+                       m_name, m_prisms.size(), m_base.triangle_count(), m_prims.size(), m_disp.field->width(), m_disp.field->height(),
                        m_disp.source, m_disp.tiling_u, m_disp.tiling_v, m_disp.field->min_height(),
                        m_disp.field->max_height(), memory_bytes() / 1048576.0, m_disp.field->memory_bytes() / 1048576.0);
 }

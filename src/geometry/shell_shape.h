@@ -19,6 +19,12 @@
 // * Tetrahedra of one prism that share their world -> cell map (a flat base with linear uvs)
 //   are traced as one segment (Prism::same_map); the clip runs in float SSE (four faces at once).
 //   Where all three share it (Prism::one_map) the prism is clipped once, in cell space.
+// * Quads: two one_map prisms that share a base edge and the world -> cell map, and whose base
+//   triangles form a convex quad in cell space (a flat quad split by its diagonal: a rectangle,
+//   a tile of a flat grid), are one Embree primitive with one box, clipped once against the
+//   quad's four edges and the height slab and traced once (ShellShape::pair_prisms): a ray
+//   through such a quad pays one callback, one clip and one heightfield call, not two, wherever
+//   it crosses the diagonal.
 // * Occlusion: a segment that starts on one side of the heightfield and ends on the other
 //   (beyond a round-off margin) crosses it: occluded without a traversal.
 // * Memory: per prism three 27-float tetrahedra plus an integer cell origin, and the
@@ -43,7 +49,10 @@ public:
     float surface_area() const override { return m_base_area; }
     /// Samples the base mesh (shell shapes cannot be emitters; used by nothing else).
     PositionSample sample_area(float u_prim, Vec2 u) const override;
-    size_t primitive_count() const override { return m_prisms.size(); }
+    /// Embree primitives: prisms, two merged into one where they form a flat convex quad.
+    size_t primitive_count() const override { return m_prims.size(); }
+    /// Prisms (one per base triangle with an area).
+    size_t prism_count() const { return m_prisms.size(); }
     size_t memory_bytes() const override;
     std::string to_string() const override;
 
@@ -63,12 +72,13 @@ public:
     float shell_min() const { return m_hmin; }
     float shell_max() const { return m_hmax; }
 
-    // Embree callbacks (public for the C trampolines).
-    void prism_bounds(uint32_t prism, float lo[3], float hi[3]) const;
-    /// Closest hit in (tnear, tfar) of prism `prism`; on a hit updates tfar, tet, x, y.
-    bool intersect_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float &tfar, uint32_t &tet, float &x,
+    // Embree callbacks (public for the C trampolines). `prim` is an Embree primitive (< primitive_count()).
+    void prism_bounds(uint32_t prim, float lo[3], float hi[3]) const;
+    /// Closest hit in (tnear, tfar) of primitive `prim`; on a hit updates tfar, tet (3 x prism +
+    /// tetrahedron: fill_interaction's prim), x, y.
+    bool intersect_prism(uint32_t prim, Vec3 o, Vec3 d, float tnear, float &tfar, uint32_t &tet, float &x,
                          float &y) const;
-    bool occluded_prism(uint32_t prism, Vec3 o, Vec3 d, float tnear, float tfar) const;
+    bool occluded_prism(uint32_t prim, Vec3 o, Vec3 d, float tnear, float tfar) const;
 
 private:
     struct Tet {
@@ -90,13 +100,29 @@ private:
         uint8_t same_map = 0;
         /// same_map for all three pairs and a base triangle with an area in cell space: the
         /// prism is clipped once, in cell space through tetrahedron 0's map (clip_prism), as
-        /// the triangle's barycentrics bary and the height slab: lambda_k = bary[0][k] x +
-        /// bary[1][k] y + bary[2][k] (k < 3; lane 3 is 0: one SSE load a row).
+        /// four edge functions and the height slab: e_k = edges[0][k] x + edges[1][k] y +
+        /// edges[2][k] >= 0 inside (one SSE load a row). A lone prism's are the triangle's
+        /// barycentrics (the first repeated in lane 3); a quad's (partner set) the quad's
+        /// edges, each scaled to 1 at the vertex farthest from it.
         bool one_map = false;
-        float bary[3][4] = {};
+        float edges[3][4] = {};
+        /// The other prism of a quad (pair_prisms), or kNoPartner. The first of the two
+        /// (partner > own index) is the Embree primitive and its map traces the quad.
+        uint32_t partner = kNoPartner;
+    };
+    static constexpr uint32_t kNoPartner = ~0u;
+    /// A prism's corners as built: world and cell space (relative to its cell origin), bottom
+    /// 0..2 then top 3..5, and the welded indices of its base vertices.
+    struct PrismCorners {
+        double wv[6][3], tv[6][3];
+        uint32_t weld[3];
     };
     static uint8_t shared_maps(const Prism &P, const double wv[6][3], const double tv[6][3]);
     static void set_one_map(Prism &P, const double tv[6][3]);
+    /// Merges neighbouring one_map prisms into quads where they can be (see the file comment)
+    /// and lists the Embree primitives (m_prims).
+    void pair_prisms(const std::vector<PrismCorners> &corners);
+    bool try_pair(uint32_t a, uint32_t b, const std::vector<PrismCorners> &corners);
     /// Clips o + t d to tetrahedron `T` within [t0, t1]; false if empty.
     static bool clip(const Tet &T, Vec3 o, Vec3 d, float &t0, float &t1);
     /// Clips o + t d to a one_map prism within [t0, t1] (in cell space); false if empty.
@@ -109,6 +135,7 @@ private:
     TriangleMesh m_base;
     std::vector<Prism> m_prisms;
     std::vector<uint32_t> m_prism_tri;  ///< base triangle of each prism
+    std::vector<uint32_t> m_prims;      ///< the prism of each Embree primitive (a quad's first)
     float m_hmin = 0.f, m_hmax = 0.f;  ///< padded shell heights
     float m_inv_thick = 0.f;           ///< 1 / (m_hmax - m_hmin)
     float m_base_area = 0.f;

@@ -14,11 +14,14 @@ namespace meso::bench {
 /// benchmark::Initialize with the defaults above; `own` takes the program's own flags (true:
 /// consumed). False when a flag is unrecognised (reported).
 inline bool initialize(int argc, char **argv, const std::function<bool(const std::string &)> &own) {
-    std::vector<std::string> args = {argv[0], "--benchmark_repetitions=5", "--benchmark_enable_random_interleaving=true",
-                                     "--benchmark_report_aggregates_only=true", "--benchmark_min_time=0.2"};
+    // Static: benchmark keeps argv[0] for its "Running ..." line, printed after this returns.
+    static std::vector<std::string> args;
+    args = {argv[0], "--benchmark_repetitions=5", "--benchmark_enable_random_interleaving=true",
+            "--benchmark_report_aggregates_only=true", "--benchmark_min_time=0.2"};
     for (int a = 1; a < argc; ++a)
         if (!own(argv[a])) args.push_back(argv[a]);
-    std::vector<char *> argp;
+    static std::vector<char *> argp;
+    argp.clear();
     for (std::string &s : args) argp.push_back(s.data());
     int n = int(argp.size());
     benchmark::Initialize(&n, argp.data());

@@ -3,8 +3,9 @@
 //
 // Two scenes differ only in the displacement mode: a 2 x 2 plane (two base triangles) displaced
 // by a generated fbm map (size --map, default 1024 as in scenes/displacement/plane_1k_*.json;
-// amplitude 0.03, frequency 4, scale 2), "shell" (two prisms traced by the heightfield
-// intersector) or "tessellate" (2 map^2 triangles in Embree). The camera is that of plane_1k.
+// amplitude 0.03, frequency 4, scale 2), "shell" (two prisms, one Embree primitive as a flat
+// quad, traced by the heightfield intersector) or "tessellate" (2 map^2 triangles in Embree). The
+// camera is that of plane_1k.
 // Benchmarks (median CPU ns per ray, or per sample for path/):
 //   hit/<mode>        Scene::intersect (closest hit + SurfaceInteraction) of 4096 camera rays,
 //                     one a pixel through a 64 x 64 tile at the image centre in raster order (as
