@@ -55,7 +55,9 @@ struct SurfaceInteraction {
     /// Fills dndu, dndv where the shape computes them on demand (meshes); idempotent.
     void compute_normal_derivatives();
     /// Shading context with frame from ns and dpdu (flipped towards wo when `two_sided`).
-    ShadingContext shading_context(bool two_sided) const;
+    /// Inline: built once per path vertex, and a call returning it through memory made its
+    /// caller reload the frame from narrower stores (store-forwarding stalls).
+    inline ShadingContext shading_context(bool two_sided) const;
     /// Origin offset along ng to the side of direction d, robust against self-intersection
     /// (Wachter & Binder, Ray Tracing Gems ch. 6: integer ULP offsets scaled by |p|).
     Vec3 offset_origin(Vec3 d) const;
@@ -68,6 +70,35 @@ struct SurfaceInteraction {
         return Ray(o, dist > 0.f ? d / dist : d, dist * (1.f - 1e-4f));
     }
 };
+
+inline ShadingContext SurfaceInteraction::shading_context(bool two_sided) const {
+    ShadingContext ctx;
+    ctx.p = p;
+    ctx.uv = uv;
+    Vec3 n = ns, g = ng;
+    if (two_sided && dot(wo, g) < 0.f) {
+        n = -n;
+        g = -g;
+        ctx.side = -1.f;
+    }
+    ctx.frame = Frame::from_normal_tangent(n, dpdu);
+    ctx.ng = g;
+    if (length_squared(n_footprint) > 0.f) {
+        ctx.n_macro = n_footprint * ctx.side;
+        ctx.dpdu_macro = length_squared(dpdu_footprint) > 0.f ? dpdu_footprint : dpdu;
+        ctx.dpdv_macro = length_squared(dpdv_footprint) > 0.f ? dpdv_footprint : dpdv;
+    }
+    ctx.micro_height = micro_height;
+    ctx.dpdu = dpdu;
+    ctx.dpdv = dpdv;
+    ctx.dpdx = dpdx;
+    ctx.dpdy = dpdy;
+    ctx.dudx = dudx;
+    ctx.dudy = dudy;
+    ctx.dvdx = dvdx;
+    ctx.dvdy = dvdy;
+    return ctx;
+}
 
 // Inline (every path vertex spawns two rays) and without branches: the sign of the offset is
 // as good as random from one vertex to the next.
