@@ -72,32 +72,21 @@ struct SurfaceInteraction {
 };
 
 inline ShadingContext SurfaceInteraction::shading_context(bool two_sided) const {
-    ShadingContext ctx;
-    ctx.p = p;
-    ctx.uv = uv;
-    Vec3 n = ns, g = ng;
-    if (two_sided && dot(wo, g) < 0.f) {
-        n = -n;
-        g = -g;
-        ctx.side = -1.f;
-    }
-    ctx.frame = Frame::from_normal_tangent(n, dpdu);
-    ctx.ng = g;
+    const bool flip = two_sided && dot(wo, ng) < 0.f;
+    const Vec3 n = flip ? -ns : ns, g = flip ? -ng : ng;
+    const float side = flip ? -1.f : 1.f;
+    Vec3 n_macro, dpdu_macro, dpdv_macro;
     if (length_squared(n_footprint) > 0.f) {
-        ctx.n_macro = n_footprint * ctx.side;
-        ctx.dpdu_macro = length_squared(dpdu_footprint) > 0.f ? dpdu_footprint : dpdu;
-        ctx.dpdv_macro = length_squared(dpdv_footprint) > 0.f ? dpdv_footprint : dpdv;
+        n_macro = n_footprint * side;
+        dpdu_macro = length_squared(dpdu_footprint) > 0.f ? dpdu_footprint : dpdu;
+        dpdv_macro = length_squared(dpdv_footprint) > 0.f ? dpdv_footprint : dpdv;
     }
-    ctx.micro_height = micro_height;
-    ctx.dpdu = dpdu;
-    ctx.dpdv = dpdv;
-    ctx.dpdx = dpdx;
-    ctx.dpdy = dpdy;
-    ctx.dudx = dudx;
-    ctx.dudy = dudy;
-    ctx.dvdx = dvdx;
-    ctx.dvdy = dvdy;
-    return ctx;
+    // Aggregate initialisation, every member in declaration order once (lod_level, lod_weight
+    // and u_eval keep their defaults): a default-constructed context was first zeroed whole
+    // (a rep stos per path vertex) and then written member by member.
+    return ShadingContext{p,          uv,         Frame::from_normal_tangent(n, dpdu), g,    dpdu, dpdv, side,
+                          n_macro,    dpdu_macro, dpdv_macro,                          micro_height,
+                          dpdx,       dpdy,       dudx,                                dudy, dvdx, dvdy};
 }
 
 // Inline (every path vertex spawns two rays) and without branches: the sign of the offset is
