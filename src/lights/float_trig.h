@@ -17,8 +17,8 @@
 namespace meso {
 
 /// a < b ? t : f without a branch (compare mask and bitwise select): for conditions that are
-/// as good as random from one call to the next (octants, reflections), where GCC's branches
-/// mispredicted about half the time.
+/// as good as random from one call to the next (octants, reflections), where a branch (what GCC
+/// made of the plain conditionals) mispredicts about half the time.
 inline float select_less(float a, float b, float t, float f) {
     const __m128 m = _mm_cmplt_ss(_mm_set_ss(a), _mm_set_ss(b));
     return _mm_cvtss_f32(_mm_or_ps(_mm_and_ps(m, _mm_set_ss(t)), _mm_andnot_ps(m, _mm_set_ss(f))));
@@ -65,7 +65,7 @@ inline void sincos_0_2pi(float t, float &s, float &c) {
     // side is as good as random per sample.
     const float r0 = (t - 3.14159274f) + 8.74227766e-8f;
     const float r_hi = (3.14159274f - r0) - 8.74227766e-8f, r_lo = (-3.14159274f - r0) + 8.74227766e-8f;
-    float r = select_less(PiOver2, r0, r_hi, select_less(r0, -PiOver2, r_lo, r0));
+    const float r = select_less(PiOver2, r0, r_hi, select_less(r0, -PiOver2, r_lo, r0));
     const float sign_c = select_less(PiOver2, std::abs(r0), 1.f, -1.f);
     // The Taylor polynomials in z = r^2 by Estrin's scheme (pairs of coefficients, then z^2 and
     // z^4): half the dependent multiply-adds of Horner's, same coefficients.
