@@ -111,7 +111,7 @@ Spectrum EnvMapLight::texel(int x, int y) const { return m_texels[size_t(y) * m_
 // at the poles.
 Vec2 EnvMapLight::direction_to_uv(Vec3 d) {
     float u = atan2_approx(d.x, -d.z) * Inv2Pi;
-    u = select_less(u, 0.f, u + 1.f, u);  // the half of the sphere is as good as random
+    if (u < 0.f) u += 1.f;
     if (!(u < 1.f)) u = 0.f;  // u = 1 (rounding) is the same meridian as 0
     float v = clamp(atan2_approx(std::sqrt(d.x * d.x + d.z * d.z), d.y) * InvPi, 0.f, 1.f);
     return {u, v};

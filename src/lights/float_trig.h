@@ -16,14 +16,6 @@
 
 namespace meso {
 
-/// a < b ? t : f without a branch (compare mask and bitwise select): for conditions that are
-/// as good as random from one call to the next (octants, reflections), where a branch (what GCC
-/// made of the plain conditionals) mispredicts about half the time.
-inline float select_less(float a, float b, float t, float f) {
-    const __m128 m = _mm_cmplt_ss(_mm_set_ss(a), _mm_set_ss(b));
-    return _mm_cvtss_f32(_mm_or_ps(_mm_and_ps(m, _mm_set_ss(t)), _mm_andnot_ps(m, _mm_set_ss(f))));
-}
-
 /// atan_unit_interval (core/math.h: A&S 4.4.49, a in [0, 1]) with its degree-8 polynomial in
 /// z = a^2 evaluated by Estrin's scheme: pairs of coefficients, then powers z^2, z^4, z^8, in
 /// about half the dependent multiply-adds of Horner's (the sampler set-ups wait on it). The same
@@ -36,14 +28,14 @@ inline float atan_unit_interval_estrin(float a) {
     return a * p;
 }
 
-/// atan2(y, x) in [-pi, pi]; 0 for (0, 0). The octant symmetries without branches.
+/// atan2(y, x) in [-pi, pi]; 0 for (0, 0).
 inline float atan2_approx(float y, float x) {
     const float ax = std::abs(x), ay = std::abs(y);
     const float hi = std::max(ax, ay), lo = std::min(ax, ay);
     if (!(hi > 0.f)) return 0.f;
     float r = atan_unit_interval_estrin(lo / hi);
-    r = select_less(ax, ay, PiOver2 - r, r);
-    r = select_less(x, 0.f, Pi - r, r);
+    if (ay > ax) r = PiOver2 - r;
+    if (x < 0.f) r = Pi - r;
     return std::copysign(r, y);
 }
 
@@ -61,12 +53,15 @@ inline float rsqrt(float x) {
 inline void sincos_0_2pi(float t, float &s, float &c) {
     // t - pi in [-pi, pi]: sin t = -sin(t - pi), cos t = -cos(t - pi). Pi as a float plus its
     // remainder keeps the reduction within 1 ulp.
-    // Beyond +-pi/2 reflect (sin(pi - r) = sin r, cos(pi - r) = -cos r), without branches: the
-    // side is as good as random per sample.
-    const float r0 = (t - 3.14159274f) + 8.74227766e-8f;
-    const float r_hi = (3.14159274f - r0) - 8.74227766e-8f, r_lo = (-3.14159274f - r0) + 8.74227766e-8f;
-    const float r = select_less(PiOver2, r0, r_hi, select_less(r0, -PiOver2, r_lo, r0));
-    const float sign_c = select_less(PiOver2, std::abs(r0), 1.f, -1.f);
+    float r = (t - 3.14159274f) + 8.74227766e-8f;
+    float sign_c = -1.f;
+    if (r > PiOver2) {  // sin(pi - r) = sin r, cos(pi - r) = -cos r
+        r = (3.14159274f - r) - 8.74227766e-8f;
+        sign_c = 1.f;
+    } else if (r < -PiOver2) {
+        r = (-3.14159274f - r) + 8.74227766e-8f;
+        sign_c = 1.f;
+    }
     // The Taylor polynomials in z = r^2 by Estrin's scheme (pairs of coefficients, then z^2 and
     // z^4): half the dependent multiply-adds of Horner's, same coefficients.
     const float z = r * r, z2 = z * z, z4 = z2 * z2;

@@ -147,7 +147,7 @@ struct FloatSphericalRectangle {
         const float p23r = c2r * c3r - c2i * c3i, p23i = c2r * c3i + c2i * c3r;
         const float pr = p01r * p23r - p01i * p23i, pi = p01r * p23i + p01i * p23r;
         S = atan2_approx(pi, pr);
-        S = select_less(S, 0.f, S + 2.f * Pi, S);
+        if (S < 0.f) S += 2.f * Pi;
         ek_c = p23r, ek_s = -p23i;  // what only sample() needs (pdf() reads S alone) is finished there
         valid = std::isfinite(S) && S > 0.f && std::isfinite(p23r) && std::isfinite(p23i);
     }
