@@ -279,14 +279,23 @@ bool PathIntegrator::scatter(const Scene &scene, RayDifferential &ray, SurfaceIn
     st.prev_ctx = LightSampleContext{si.p, ctx.ng};
     if (bs.flags & BSDF_Transmission) st.eta_scale *= sqr(bs.eta);
 
-    RayDifferential next(si.spawn_ray(wi));
-    next.footprint_scale = ray.footprint_scale;
-    next.mask = ray.mask;
     if (m_use_differentials && (bs.flags & BSDF_Delta) && ray.has_differentials) {
+        RayDifferential next(si.spawn_ray(wi));
+        next.footprint_scale = ray.footprint_scale;
+        next.mask = ray.mask;
         si.compute_normal_derivatives();
         specular_differentials(ray, si, ctx.frame.n, wi, bs.flags, bs.eta, next);
+        ray = next;
+        return true;
     }
-    ray = next;
+    // The next segment written in place (footprint_scale and mask carry over): a copy of a
+    // temporary RayDifferential reloaded its scalar stores as vectors (store-forwarding stalls).
+    // Without differentials the offset rays are never read.
+    ray.o = si.offset_origin(wi);
+    ray.d = wi;
+    ray.tmin = 0.f;
+    ray.tmax = Infinity;
+    ray.has_differentials = false;
     return true;
 }
 

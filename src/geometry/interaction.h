@@ -55,7 +55,9 @@ struct SurfaceInteraction {
     /// Fills dndu, dndv where the shape computes them on demand (meshes); idempotent.
     void compute_normal_derivatives();
     /// Shading context with frame from ns and dpdu (flipped towards wo when `two_sided`).
-    ShadingContext shading_context(bool two_sided) const;
+    /// Inline: built once per path vertex, and a call returning it through memory made its
+    /// caller reload the frame from narrower stores (store-forwarding stalls).
+    inline ShadingContext shading_context(bool two_sided) const;
     /// Origin offset along ng to the side of direction d, robust against self-intersection
     /// (Wachter & Binder, Ray Tracing Gems ch. 6: integer ULP offsets scaled by |p|).
     Vec3 offset_origin(Vec3 d) const;
@@ -68,6 +70,24 @@ struct SurfaceInteraction {
         return Ray(o, dist > 0.f ? d / dist : d, dist * (1.f - 1e-4f));
     }
 };
+
+inline ShadingContext SurfaceInteraction::shading_context(bool two_sided) const {
+    const bool flip = two_sided && dot(wo, ng) < 0.f;
+    const Vec3 n = flip ? -ns : ns, g = flip ? -ng : ng;
+    const float side = flip ? -1.f : 1.f;
+    Vec3 n_macro, dpdu_macro, dpdv_macro;
+    if (length_squared(n_footprint) > 0.f) {
+        n_macro = n_footprint * side;
+        dpdu_macro = length_squared(dpdu_footprint) > 0.f ? dpdu_footprint : dpdu;
+        dpdv_macro = length_squared(dpdv_footprint) > 0.f ? dpdv_footprint : dpdv;
+    }
+    // Aggregate initialisation, every member in declaration order once (lod_level, lod_weight
+    // and u_eval keep their defaults): a default-constructed context was first zeroed whole
+    // (a rep stos per path vertex) and then written member by member.
+    return ShadingContext{p,          uv,         Frame::from_normal_tangent(n, dpdu), g,    dpdu, dpdv, side,
+                          n_macro,    dpdu_macro, dpdv_macro,                          micro_height,
+                          dpdx,       dpdy,       dudx,                                dudy, dvdx, dvdy};
+}
 
 // Inline (every path vertex spawns two rays) and without branches: the sign of the offset is
 // as good as random from one vertex to the next.

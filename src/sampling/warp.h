@@ -14,17 +14,19 @@ inline void sincos_quarter(float x, float &s, float &c) {
 }
 
 /// Shirley and Chiu's concentric map; the angle, in [-pi/4, pi/4] from the nearer axis, by
-/// sincos_quarter.
+/// sincos_quarter. Without branches on the octant (as good as random per sample): the two
+/// cases differ only in which coordinate is the radius and in swapping sine and cosine.
 inline Vec2 square_to_uniform_disk_concentric(Vec2 u) {
-    float ox = 2.f * u.x - 1.f, oy = 2.f * u.y - 1.f;
-    if (ox == 0.f && oy == 0.f) return {0.f, 0.f};
+    const float ox = 2.f * u.x - 1.f, oy = 2.f * u.y - 1.f;
+    // |ox| > |oy|: r = ox, theta = pi/4 oy / ox; otherwise r = oy, theta = pi/2 - pi/4 ox / oy.
+    const bool x_major = std::abs(ox) > std::abs(oy);
+    const float r = x_major ? ox : oy, other = x_major ? oy : ox;
+    // r = 0 only at the centre (then other = 0 too): angle 0, the point (0, 0).
+    const float q = r != 0.f ? other / r : 0.f;
     float s, c;
-    if (std::abs(ox) > std::abs(oy)) {  // theta = pi/4 oy / ox
-        sincos_quarter(PiOver4 * (oy / ox), s, c);
-        return {ox * c, ox * s};
-    }
-    sincos_quarter(PiOver4 * (ox / oy), s, c);  // theta = pi/2 - pi/4 ox / oy
-    return {oy * s, oy * c};
+    sincos_quarter(PiOver4 * q, s, c);
+    const float a = r * c, b = r * s;
+    return x_major ? Vec2(a, b) : Vec2(b, a);
 }
 
 /// Cosine-weighted hemisphere (z up); pdf = cos(theta)/pi.
