@@ -133,11 +133,15 @@ public:
         float krow = 0.f;     ///< κ_j as a row coordinate of the C and H tables (Lambertian)
         float inv_mass = 0.f; ///< 1 / ∫ C(μ_j·ω, κ_j) dω of the tabulated C (≈ 1/π): the Lambertian sampler's normalisation
         float hz = 0.f;       ///< H(μ_j,z, κ_j) (> 0)
+        float cz = 0.f;       ///< C(μ_j,z, κ_j) (> 0): the lobe's projected area at the pole, per unit A a_j
     };
 
     /// patch_mean_albedo false: a Lambertian base's reflectance at the shading point (models made
     /// before the patch mean; QuadratureOptions::point_albedo).
-    SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo = true);
+    /// visible_lambert false: a Lambertian lobe's view weight min(H(μ_j,z), H(μ_j·ωo)) (models made
+    /// before the visible form; QuadratureOptions::cap_mass_lambert).
+    SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo = true,
+               bool visible_lambert = true);
 
     Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
         return eval_pdf(ctx, wo, wi, nullptr);
@@ -157,6 +161,7 @@ public:
     const LobeBase &base() const { return m_base; }
     size_t memory_bytes() const {
         return m_lobes.size() * sizeof(Lobe) + m_blocks.size() * sizeof(LobeBlock) + m_albedo.size() * sizeof(Spectrum) +
+               m_visible_scale.size() * sizeof(float) +
                (m_first.size() + m_first_block.size()) * sizeof(uint32_t);
     }
 
@@ -167,6 +172,8 @@ private:
     size_t patch_index(Vec2 uv) const;
     Spectrum eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
                               float *pdf) const;
+    /// A Lambertian lobe's weight towards ωo, v_j(ωo) of the header (P_j ∝ v_j).
+    float lambert_view_weight(const Lobe &l, const Vec3 &wo) const;
     /// The lobe chosen by u_lobe for wo (P_j of the header); null when none faces wo.
     const Lobe *choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const;
 
@@ -185,6 +192,8 @@ private:
     /// Lambertian base: patch k's ρ/π, the base's averaged over the patch (patch_mean_lambert);
     /// empty otherwise, and with point albedo (then lambert() reads the base at the point).
     std::vector<Spectrum> m_albedo;
+    bool m_visible = false;              ///< Lambertian lobes weighted by their projected area towards ωo
+    std::vector<float> m_visible_scale;  ///< visible form: patch k's Σ_j c_j
     int m_w = 0, m_h = 0;
 };
 
