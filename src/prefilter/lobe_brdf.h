@@ -36,7 +36,19 @@
 //   of microfacet.h, with Walter et al. 2007's rational Λ for Beckmann (no erf) and the exact Λ
 //   for GGX (one sqrt).
 // * Lambertian base (`diffuse`, any reflectance texture, read through the base's own eval):
-//       c_j g_j = A a_j · ρ̄/π · C(μ_j·ωi, κ_j) · min(H(μ_j,z, κ_j), H(μ_j·ωo, κ_j))
+//       eval = ρ̄/π · Σ_j w_j(ωo) C(μ_j·ωi, κ_j),   w_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) · Σ_k c_k,
+//       c_j = A a_j C(μ_j,z, κ_j),   v_j(ωo) = C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j)
+//   i.e. the lobes weighted by their projected area towards the viewer, A a_j C(μ_j·ωo, κ_j) =
+//   ∫ D_j(m) max(0, m·ωo) dm, normalised (the visible normals' distribution, D_ωo of Heitz 2014:
+//   Σ_j w_j = Σ_j c_j, 1 for a normalised NDF), each lobe then the vMF-convolved clamped cosine
+//   towards ωi. Continuous in ωo where a facet turns away from the viewer: its weight goes to 0
+//   with its projected area. The form before (models without parameters.lambert_view, which keep
+//   it: their tables were fitted to it) weighted lobe j by min(H(μ_j,z, κ_j), H(μ_j·ωo, κ_j)), a
+//   STEP at μ_j·ωo = 0 for the sharp lobes of flat facets; S = original / f'_low then jumped there
+//   (0.8 to 3.4 within one bin on the bench sawtooth), and S read between bin centres across the
+//   step put energy into the neighbouring bins that the fit never put there: θo rings of the
+//   bench sawtooth ±10% off their fitted energy, the render 1.2-2.3% too bright under the sky
+//   (docs/performance.md; tests/test_prefiltered_bias.cpp against brute force of the original).
 //   ρ̄ is the base's reflectance AVERAGED over the patch (uv area; patch_mean_lambert, computed
 //   once at construction), not its value at the shading point: like the NDF, the albedo is
 //   prefiltered over the patch. The point value put the map's sub-patch colour detail back into
@@ -49,14 +61,12 @@
 //   the point value and shaded with the mean: +3% in its near rows). So the manifest records it
 //   (parameters.albedo = "patch_mean"), and models made before keep the point value.
 //   C(t, κ) = ∫ γ(ω; μ, κ) max(0, ω·ωi) dω (t = μ·ωi) is the vMF-convolved clamped cosine,
-//   exactly what eq. 5 gives for the ωi side; eq. 5's two other cuts, the macro horizon
-//   [ω_z > 0] and the viewer's [ω·ωo > 0], become the smaller of the two masses (ωo is above the
-//   horizon, so the cuts overlap: their product would count the overlap twice, 0.38 of eq. 5
-//   for κ = 0 instead of 0.76). Smooth, no hard line where ωo crosses a facet plane. C and H are
-//   tabulated (vmf_clamped_cosine, vmf_cap_mass).
+//   exactly what eq. 5 gives for the ωi side; eq. 5's viewer cut [ω·ωo > 0] becomes the weight by
+//   m·ωo (0.96-1.03 of eq. 5 for κ >= 30, 0.38 at κ = 0, where eq. 5 counts every normal facing
+//   ωo at full weight: T and S absorb it). C and H are tabulated (vmf_clamped_cosine, vmf_cap_mass).
 //
 // Sampling: lobe j with probability P_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) (v = [μ_j·ωo > 0] for
-// microfacet lobes, min(1, H(μ_j·ωo, κ_j) / H(μ_j,z, κ_j)) for Lambertian ones), then
+// microfacet lobes, v_j(ωo) above for Lambertian ones), then
 //   microfacet: the FULL NDF D_α'(m; μ_j)(m·μ_j) in the frame of μ_j (closed form, no inverted
 //     CDF), ωi = reflect(ωo, m); density D (m·μ_j) / (4 ωo·m) where μ_j·ωi > 0;
 //   Lambertian: exactly the lobe's own C: t = μ_j·ωi drawn with density C(t, κ_j) / ∫C from the
