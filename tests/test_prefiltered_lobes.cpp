@@ -18,6 +18,7 @@ const std::string &lobes_model_dir() {
         PrefilteredModel m = tiny_model().model;
         m.quadrature.lobes = true;
         m.manifest["parameters"]["flow"] = "lobes";
+        m.manifest["parameters"]["lambert_view"] = "visible";  // as `meso prefilter` writes it now
         const std::string d = (fs::path(meso::test::scratch_dir("meso_prefiltered_test")) / "model_lobes").string();
         m.save(d);
         return d;
@@ -34,6 +35,9 @@ std::shared_ptr<Material> lobes_material(const std::string &extra) {
 TEST(PrefilteredLobes, FormIsRecordedAndLoaded) {
     EXPECT_TRUE(PrefilteredModel::load(lobes_model_dir()).quadrature.lobes);
     EXPECT_FALSE(PrefilteredModel::load(tiny_model().dir).quadrature.lobes);  // older manifests: eq5
+    // parameters.lambert_view: "visible" now; absent (models made before) the min(H, H) view weight.
+    EXPECT_FALSE(PrefilteredModel::load(lobes_model_dir()).quadrature.cap_mass_lambert);
+    EXPECT_TRUE(PrefilteredModel::load(tiny_model().dir).quadrature.cap_mass_lambert);
 }
 
 TEST(PrefilteredLobes, EvalIsTimesSTimesTheClosedForm) {
@@ -111,6 +115,7 @@ TEST(PrefilteredLobes, DiffuseAlbedoIsThePatchMeanInModelsThatSaySo) {
         m.manifest["input"]["base"] = m.base;
         m.manifest["parameters"]["flow"] = "lobes";
         if (patch_mean) m.manifest["parameters"]["albedo"] = "patch_mean";
+        m.manifest["parameters"]["lambert_view"] = "visible";  // as the reference `lobes` below
         const std::string d = (fs::path(meso::test::scratch_dir("meso_prefiltered_test")) /
                                (patch_mean ? "model_lobes_checker_mean" : "model_lobes_checker_point"))
                                   .string();

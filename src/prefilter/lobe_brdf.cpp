@@ -262,8 +262,10 @@ LobeBase make_lobe_base(std::shared_ptr<const Material> material, const nlohmann
 
 // ---------------------------------------------------------------------------------------
 
-SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo)
-    : m_base(std::move(base)), m_w(width), m_h(height) {
+SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo,
+                       bool visible_lambert)
+    : m_base(std::move(base)), m_visible(visible_lambert && m_base.kind == LobeBase::Kind::Lambertian), m_w(width),
+      m_h(height) {
     if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
         throw MesoError(fmt::format("lobes f'_low: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
     m_first.reserve(ndf.size() + 1);
@@ -285,8 +287,11 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             const double kappa = std::min(v.kappa, vmf::kMaxKappa);
             l.krow = VmfTables::row(kappa);
             l.hz = VmfTables::lookup(vmf_tables().H, l.mu.z, l.krow);
-            l.c = float(P.amplitude * v.weight * l.hz);
-            if (!(l.c > 0.f) || !(l.hz > 0.f)) continue;
+            l.cz = VmfTables::lookup(vmf_tables().C, l.mu.z, l.krow);
+            // The visible form weights the lobe by its projected area towards ωo, A a_j C(μ_j·ωo, κ_j):
+            // c_j = A a_j C(μ_j,z, κ_j) is that at the pole (lambert_view_weight: c_j C(μ_j·ωo) / C(μ_j,z)).
+            l.c = float(P.amplitude * v.weight * (m_visible ? l.cz : l.hz));
+            if (!(l.c > 0.f) || !(l.hz > 0.f) || !(l.cz > 0.f)) continue;
             const double a = widened_alpha(m_base.alpha, kappa);
             l.alpha = float(a);
             l.inv_a2 = float(1.0 / (a * a));
@@ -296,6 +301,11 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
         }
     }
     m_first.push_back(uint32_t(m_lobes.size()));
+    if (m_visible) {
+        m_visible_scale.assign(ndf.size(), 0.f);
+        for (size_t k = 0; k < ndf.size(); ++k)
+            for (uint32_t j = m_first[k]; j < m_first[k + 1]; ++j) m_visible_scale[k] += m_lobes[j].c;
+    }
     if (m_base.kind == LobeBase::Kind::Lambertian && patch_mean_albedo)
         m_albedo = patch_mean_lambert(*m_base.material, m_w, m_h);
     // The same lobes by component, four per block.
@@ -312,6 +322,13 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
         }
     }
     m_first_block.push_back(uint32_t(m_blocks.size()));
+}
+
+float SvLobeBrdf::lambert_view_weight(const Lobe &l, const Vec3 &wo) const {
+    const VmfTables &tab = vmf_tables();
+    const float t = dot(l.mu, wo);
+    if (m_visible) return l.c * VmfTables::lookup(tab.C, t, l.krow) / l.cz;
+    return l.c * std::min(1.f, VmfTables::lookup(tab.H, t, l.krow) / l.hz);
 }
 
 size_t SvLobeBrdf::patch_index(Vec2 uv) const {
@@ -386,7 +403,7 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, c
     const Lobe *b = m_lobes.data() + m_first[patch], *e = m_lobes.data() + m_first[patch + 1];
     float sum = 0.f, psum = 0.f, ptot = 0.f;
     for (const Lobe *l = b; l != e; ++l) {
-        const float v = l->c * std::min(1.f, VmfTables::lookup(tab.H, dot(l->mu, wo), l->krow) / l->hz);
+        const float v = lambert_view_weight(*l, wo);
         if (!(v > 0.f)) continue;
         const float ti = dot(l->mu, wi);
         ptot += v;
@@ -396,6 +413,9 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, c
     }
     if (pdf) *pdf = ptot > 0.f ? psum / ptot : 0.f;
     if (!(sum > 0.f)) return Spectrum(0.f);
+    // The visible form: the lobes' shares of what is seen from ωo (Σ_j share_j = 1), times the
+    // NDF's total projected area (Σ_j c_j = A Σ_j a_j C(μ_j,z, κ_j), 1 for a normalised NDF).
+    if (m_visible) return lambert(ctx, patch) * (sum * m_visible_scale[patch] / ptot);
     return lambert(ctx, patch) * sum;
 }
 
@@ -419,8 +439,7 @@ const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const V
     float total = 0.f;
     for (int j = 0; j < n; ++j) {
         const float t = dot(b[j].mu, wo);
-        w[j] = mf ? (t > 0.f ? b[j].c : 0.f)
-                  : b[j].c * std::min(1.f, VmfTables::lookup(vmf_tables().H, t, b[j].krow) / b[j].hz);
+        w[j] = mf ? (t > 0.f ? b[j].c : 0.f) : lambert_view_weight(b[j], wo);
         total += w[j];
     }
     if (!(total > 0.f)) return nullptr;

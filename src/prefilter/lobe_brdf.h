@@ -36,7 +36,19 @@
 //   of microfacet.h, with Walter et al. 2007's rational Λ for Beckmann (no erf) and the exact Λ
 //   for GGX (one sqrt).
 // * Lambertian base (`diffuse`, any reflectance texture, read through the base's own eval):
-//       c_j g_j = A a_j · ρ̄/π · C(μ_j·ωi, κ_j) · min(H(μ_j,z, κ_j), H(μ_j·ωo, κ_j))
+//       eval = ρ̄/π · Σ_j w_j(ωo) C(μ_j·ωi, κ_j),   w_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) · Σ_k c_k,
+//       c_j = A a_j C(μ_j,z, κ_j),   v_j(ωo) = C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j)
+//   i.e. the lobes weighted by their projected area towards the viewer, A a_j C(μ_j·ωo, κ_j) =
+//   ∫ D_j(m) max(0, m·ωo) dm, normalised (the visible normals' distribution, D_ωo of Heitz 2014:
+//   Σ_j w_j = Σ_j c_j, 1 for a normalised NDF), each lobe then the vMF-convolved clamped cosine
+//   towards ωi. Continuous in ωo where a facet turns away from the viewer: its weight goes to 0
+//   with its projected area. The form before (models without parameters.lambert_view, which keep
+//   it: their tables were fitted to it) weighted lobe j by min(H(μ_j,z, κ_j), H(μ_j·ωo, κ_j)), a
+//   STEP at μ_j·ωo = 0 for the sharp lobes of flat facets; S = original / f'_low then jumped there
+//   (0.8 to 3.4 within one bin on the bench sawtooth), and S read between bin centres across the
+//   step put energy into the neighbouring bins that the fit never put there: θo rings of the
+//   bench sawtooth ±10% off their fitted energy, the render 1.2-2.3% too bright under the sky
+//   (docs/performance.md; tests/test_prefiltered_bias.cpp against brute force of the original).
 //   ρ̄ is the base's reflectance AVERAGED over the patch (uv area; patch_mean_lambert, computed
 //   once at construction), not its value at the shading point: like the NDF, the albedo is
 //   prefiltered over the patch. The point value put the map's sub-patch colour detail back into
@@ -49,14 +61,12 @@
 //   the point value and shaded with the mean: +3% in its near rows). So the manifest records it
 //   (parameters.albedo = "patch_mean"), and models made before keep the point value.
 //   C(t, κ) = ∫ γ(ω; μ, κ) max(0, ω·ωi) dω (t = μ·ωi) is the vMF-convolved clamped cosine,
-//   exactly what eq. 5 gives for the ωi side; eq. 5's two other cuts, the macro horizon
-//   [ω_z > 0] and the viewer's [ω·ωo > 0], become the smaller of the two masses (ωo is above the
-//   horizon, so the cuts overlap: their product would count the overlap twice, 0.38 of eq. 5
-//   for κ = 0 instead of 0.76). Smooth, no hard line where ωo crosses a facet plane. C and H are
-//   tabulated (vmf_clamped_cosine, vmf_cap_mass).
+//   exactly what eq. 5 gives for the ωi side; eq. 5's viewer cut [ω·ωo > 0] becomes the weight by
+//   m·ωo (0.96-1.03 of eq. 5 for κ >= 30, 0.38 at κ = 0, where eq. 5 counts every normal facing
+//   ωo at full weight: T and S absorb it). C and H are tabulated (vmf_clamped_cosine, vmf_cap_mass).
 //
 // Sampling: lobe j with probability P_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) (v = [μ_j·ωo > 0] for
-// microfacet lobes, min(1, H(μ_j·ωo, κ_j) / H(μ_j,z, κ_j)) for Lambertian ones), then
+// microfacet lobes, v_j(ωo) above for Lambertian ones), then
 //   microfacet: the FULL NDF D_α'(m; μ_j)(m·μ_j) in the frame of μ_j (closed form, no inverted
 //     CDF), ωi = reflect(ωo, m); density D (m·μ_j) / (4 ωo·m) where μ_j·ωi > 0;
 //   Lambertian: exactly the lobe's own C: t = μ_j·ωi drawn with density C(t, κ_j) / ∫C from the
@@ -133,11 +143,15 @@ public:
         float krow = 0.f;     ///< κ_j as a row coordinate of the C and H tables (Lambertian)
         float inv_mass = 0.f; ///< 1 / ∫ C(μ_j·ω, κ_j) dω of the tabulated C (≈ 1/π): the Lambertian sampler's normalisation
         float hz = 0.f;       ///< H(μ_j,z, κ_j) (> 0)
+        float cz = 0.f;       ///< C(μ_j,z, κ_j) (> 0): the lobe's projected area at the pole, per unit A a_j
     };
 
     /// patch_mean_albedo false: a Lambertian base's reflectance at the shading point (models made
     /// before the patch mean; QuadratureOptions::point_albedo).
-    SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo = true);
+    /// visible_lambert false: a Lambertian lobe's view weight min(H(μ_j,z), H(μ_j·ωo)) (models made
+    /// before the visible form; QuadratureOptions::cap_mass_lambert).
+    SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo = true,
+               bool visible_lambert = true);
 
     Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
         return eval_pdf(ctx, wo, wi, nullptr);
@@ -157,6 +171,7 @@ public:
     const LobeBase &base() const { return m_base; }
     size_t memory_bytes() const {
         return m_lobes.size() * sizeof(Lobe) + m_blocks.size() * sizeof(LobeBlock) + m_albedo.size() * sizeof(Spectrum) +
+               m_visible_scale.size() * sizeof(float) +
                (m_first.size() + m_first_block.size()) * sizeof(uint32_t);
     }
 
@@ -167,6 +182,8 @@ private:
     size_t patch_index(Vec2 uv) const;
     Spectrum eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
                               float *pdf) const;
+    /// A Lambertian lobe's weight towards ωo, v_j(ωo) of the header (P_j ∝ v_j).
+    float lambert_view_weight(const Lobe &l, const Vec3 &wo) const;
     /// The lobe chosen by u_lobe for wo (P_j of the header); null when none faces wo.
     const Lobe *choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const;
 
@@ -185,6 +202,8 @@ private:
     /// Lambertian base: patch k's ρ/π, the base's averaged over the patch (patch_mean_lambert);
     /// empty otherwise, and with point albedo (then lambert() reads the base at the point).
     std::vector<Spectrum> m_albedo;
+    bool m_visible = false;              ///< Lambertian lobes weighted by their projected area towards ωo
+    std::vector<float> m_visible_scale;  ///< visible form: patch k's Σ_j c_j
     int m_w = 0, m_h = 0;
 };
 

@@ -214,6 +214,12 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
         throw MesoError(fmt::format("{}: parameters.albedo: expected \"patch_mean\" or \"point\", got \"{}\"", where,
                                     albedo));
     m.quadrature.point_albedo = albedo == "point";
+    // parameters.lambert_view (absent in models made before the visible form of the lobes' view weight).
+    const std::string view = par.value("lambert_view", std::string("cap_mass"));
+    if (view != "cap_mass" && view != "visible")
+        throw MesoError(fmt::format("{}: parameters.lambert_view: expected \"visible\" or \"cap_mass\", got \"{}\"",
+                                    where, view));
+    m.quadrature.cap_mass_lambert = view == "cap_mass";
     if (m.map_width < 1 || m.map_height < 1 || !(m.tile_size > 0) || m.lobes < 1 || m.lobes > 64)
         throw MesoError(fmt::format("{}: invalid map size, tile_size or lobes", where));
     for (const auto &lj : need(j, "levels", where)) {
@@ -327,7 +333,7 @@ SvMultiLobe::SvMultiLobe(std::shared_ptr<const Material> base, const std::vector
         throw MesoError(fmt::format("multi-lobe SVBRDF: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
     if (q.lobes) {
         m_lobe_form = std::make_unique<SvLobeBrdf>(make_lobe_base(m_base, base_json, base_where), ndf, width, height,
-                                                   !q.point_albedo);
+                                                   !q.point_albedo, !q.cap_mass_lambert);
         return;
     }
     m_patches.resize(ndf.size());

@@ -148,6 +148,10 @@ struct QuadratureOptions {
     /// patch mean (lobe_brdf.h) — how models made before the patch mean were fitted (their
     /// manifest has no parameters.albedo); they keep shading the way their tables expect.
     bool point_albedo = false;
+    /// --flow lobes with a Lambertian base: each lobe weighted towards ωo by min(H(μ_j,z), H(μ_j·ωo))
+    /// instead of its projected area (lobe_brdf.h) — how models made before the visible form were
+    /// fitted (their manifest has no parameters.lambert_view).
+    bool cap_mass_lambert = false;
 };
 
 /// One node of the quadrature of D: micro-normal ω_k (its frame) and weight c_k.
