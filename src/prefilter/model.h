@@ -26,8 +26,9 @@
 // lifted to the hemisphere EQUIDISTANTLY in the polar angle (disk radius ρ = θ / 90°, azimuth
 // kept), not by the cosine-weighted lift z = sqrt(1 - ρ²): with the latter the outer ring of
 // N = 15 bins would span θ = 60°..90° (r from 13/15 to 1 in sin θ), far too coarse where
-// shadowing and masking change fastest; here every ring spans 90° / N (6° at N = 15), so
-// grazing directions get bins of their own (see prefilter/scaling.h on grazing angles).
+// shadowing and masking change fastest; here a ring of bins spans 2 x 90° / N in θ (the centre
+// bin 0..6°, then rings of 12° up to the outer ring 78..90° at N = 15), so grazing directions get
+// bins of their own (see prefilter/scaling.h on grazing angles).
 // Bin (bx, by) covers [bx/N, (bx+1)/N) x [by/N, (by+1)/N) of the square, index b = by N + bx;
 // the lookup is bilinear in (ωi's square coordinates) x bilinear in (ωo's), between bin
 // centres, clamped at the square's border (quadrilinear overall).
