@@ -337,8 +337,7 @@ size_t SvLobeBrdf::patch_index(Vec2 uv) const {
     return size_t(j) * size_t(m_w) + size_t(i);
 }
 
-std::pair<const SvLobeBrdf::Lobe *, const SvLobeBrdf::Lobe *> SvLobeBrdf::lobes(Vec2 uv) const {
-    const size_t k = patch_index(uv);
+std::pair<const SvLobeBrdf::Lobe *, const SvLobeBrdf::Lobe *> SvLobeBrdf::lobes(size_t k) const {
     const Lobe *base = m_lobes.data();
     return {base + m_first[k], base + m_first[k + 1]};
 }
@@ -400,7 +399,7 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
 Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
                                       float *pdf) const {
     const VmfTables &tab = vmf_tables();
-    const Lobe *b = m_lobes.data() + m_first[patch], *e = m_lobes.data() + m_first[patch + 1];
+    const auto [b, e] = lobes(patch);
     float sum = 0.f, psum = 0.f, ptot = 0.f;
     for (const Lobe *l = b; l != e; ++l) {
         const float v = lambert_view_weight(*l, wo);
@@ -419,11 +418,16 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, c
     return lambert(ctx, patch) * sum;
 }
 
-Spectrum SvLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
+Spectrum SvLobeBrdf::eval_pdf_patch(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
+                                    float *pdf) const {
     if (pdf) *pdf = 0.f;
     if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
-    if (m_base.kind == LobeBase::Kind::Microfacet) return eval_pdf_microfacet(patch_index(ctx.uv), wo, wi, pdf);
-    return eval_pdf_lambert(ctx, patch_index(ctx.uv), wo, wi, pdf);
+    if (m_base.kind == LobeBase::Kind::Microfacet) return eval_pdf_microfacet(patch, wo, wi, pdf);
+    return eval_pdf_lambert(ctx, patch, wo, wi, pdf);
+}
+
+Spectrum SvLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
+    return eval_pdf_patch(ctx, patch_index(ctx.uv), wo, wi, pdf);
 }
 
 float SvLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
@@ -455,7 +459,8 @@ const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const V
 
 bool SvLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
     if (!(wo.z > 0.f)) return false;
-    const auto [b, e] = lobes(ctx.uv);
+    const size_t patch = patch_index(ctx.uv);
+    const auto [b, e] = lobes(patch);
     const Lobe *l = choose(b, e, wo, u_lobe);
     if (!l) return false;
     Vec3 wi;
@@ -480,7 +485,7 @@ bool SvLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe,
     }
     if (!(wi.z > 0.f)) return false;
     float p = 0.f;
-    const Spectrum f = eval_pdf(ctx, wo, wi, &p);
+    const Spectrum f = eval_pdf_patch(ctx, patch, wo, wi, &p);
     if (!(p > 0.f) || !std::isfinite(p)) return false;
     out.wi = wi;
     out.pdf = p;

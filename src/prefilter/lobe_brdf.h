@@ -167,7 +167,8 @@ public:
     /// eval(ctx, wo, wi[b]) for b < n into out[b] (the prefilter's next-event splat).
     void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
     /// The lobes of the patch holding uv: [first, last).
-    std::pair<const Lobe *, const Lobe *> lobes(Vec2 uv) const;
+    /// Patch k's lobes [begin, end).
+    std::pair<const Lobe *, const Lobe *> lobes(size_t k) const;
     const LobeBase &base() const { return m_base; }
     size_t memory_bytes() const {
         return m_lobes.size() * sizeof(Lobe) + m_blocks.size() * sizeof(LobeBlock) + m_albedo.size() * sizeof(Spectrum) +
@@ -178,6 +179,8 @@ public:
 private:
     /// ρ/π of a Lambertian base: averaged over the patch (m_albedo), or at ctx (point albedo).
     Spectrum lambert(const ShadingContext &ctx, size_t patch) const;
+    /// eval_pdf at patch `patch` (found once per sample).
+    Spectrum eval_pdf_patch(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const;
     Spectrum eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const;
     size_t patch_index(Vec2 uv) const;
     Spectrum eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
