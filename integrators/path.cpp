@@ -150,12 +150,12 @@ Spectrum PathIntegrator::trace_lod(const Scene &scene, RayDifferential ray, Samp
     // coarsest mask: the camera ray's hit is kept; other levels retrace it.
     // With a model's measured errors the level is the one of least expected pixel MSE at the
     // pixel's footprint and the render's spp; else the camera ray's per-sample footprint picks it
-    // (the pixel's times max(1/8, 1/sqrt(spp)); geometry/lod.h has both rules).
+    // (the pixel's times max(1/8, 1/sqrt(spp)); geometry/lod.h has both rules, and the metric
+    // check that keeps finer levels where the uv map stretches the model's cells).
     first.si.compute_differentials(ray, scene.camera.get());
     first.differentials = true;
     const LodGroup &g = *first.si.shape->lod;
-    const LodSelection sel = select_path_level(g, first.si.dudx, first.si.dudy, first.si.dvdx, first.si.dvdy,
-                                               ray.footprint_scale, samples_per_pixel());
+    const LodSelection sel = select_path_level(g, first.si, ray.footprint_scale, samples_per_pixel());
     auto at_level = [&](int level) {
         if (level >= m_lod_last) return trace(scene, ray, sampler, stats, &first);
         RayDifferential r = ray;

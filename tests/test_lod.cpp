@@ -6,6 +6,8 @@
 #include "core/error.h"
 #include "geometry/shape.h"
 #include "geometry/lod.h"
+#include "geometry/interaction.h"
+#include "core/ray.h"
 #include "render_test_util.h"
 #include <fmt/format.h>
 #include <cstdio>
@@ -399,4 +401,153 @@ TEST(LodMse, PathLevelUsesThePixelFootprintAndTheSpp) {
     EXPECT_NEAR(s.t, 0.5f, 1e-3f);
     s = select_path_level(g, du, 0.f, 0.f, du, 0.125f, 4);  // few samples: the coarse level
     EXPECT_EQ(s.lo, 1);
+}
+
+// Metric check (geometry/lod.h): a prefiltered model describes square cells of world size c0;
+// D = max(lambda_1, 1 / lambda_2) of the local texel-to-model metric, and the footprint the rule
+// sees moves to the original between D = sqrt 2 and 2.
+namespace {
+
+constexpr double kTexels = 256, kC0 = 0.01;  // 256 texels per unit uv, model texel 0.01 world
+
+/// Tangents of a surface whose texels measure (su c0, sv c0) along directions at angle `alpha`,
+/// rotated off the coordinate axes (the metric must not depend on the frame).
+void stretched(double su, double sv, double alpha, Vec3 &dpdu, Vec3 &dpdv) {
+    const Vec3 e1 = normalize(Vec3(0.6f, 0.8f, 0.f)), e2 = normalize(Vec3(-0.48f, 0.36f, 0.8f));
+    const double L = kTexels * kC0;
+    dpdu = e1 * float(su * L);
+    dpdv = (e1 * float(std::cos(alpha)) + e2 * float(std::sin(alpha))) * float(sv * L);
+}
+
+double distortion(double su, double sv, double alpha = 1.5707963267948966) {
+    Vec3 a, b;
+    stretched(su, sv, alpha, a, b);
+    return metric_distortion(a, b, kTexels, kTexels, kC0);
+}
+
+}  // namespace
+
+TEST(LodMetric, DistortionIsTheLargerStretchOrShrinkOfTheModelsCells) {
+    EXPECT_NEAR(distortion(1, 1), 1.0, 1e-5);
+    EXPECT_NEAR(distortion(1.12, 1.12), 1.12, 1e-5);  // isotropic: the larger of lambda, 1 / lambda
+    EXPECT_NEAR(distortion(0.8, 0.8), 1.25, 1e-5);
+    // A uv sphere's tile at colatitude theta: u shrinks like sin(theta).
+    for (double theta : {1.5, 0.7, 0.3, 0.05, 1e-4}) EXPECT_NEAR(distortion(std::sin(theta), 1), 1 / std::sin(theta), 1e-4 / std::sin(theta));
+    EXPECT_NEAR(distortion(3, 1), 3.0, 1e-5);
+    // Unit cells sheared to angle alpha: lambda² = 1 +- cos(alpha).
+    for (double alpha : {1.2, 0.5, 0.01})
+        EXPECT_NEAR(distortion(1, 1, alpha), 1 / std::sqrt(1 - std::cos(alpha)), 1e-3 / std::sqrt(1 - std::cos(alpha)));
+    // No model: nothing to check.
+    Vec3 a, b;
+    stretched(0.1, 1, 1.57, a, b);
+    EXPECT_EQ(metric_distortion(a, b, kTexels, kTexels, 0.0), 1.0);
+}
+
+TEST(LodMetric, DegenerateTangentsGiveTheOriginalAndFiniteSelections) {
+    const Vec3 u(float(kTexels * kC0), 0.f, 0.f), v(0.f, float(kTexels * kC0), 0.f);
+    const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+    LodGroup g;
+    g.chain = LodChain({1.f, 4.f, 16.f, 64.f});
+    g.texel_w = g.texel_h = kTexels;
+    g.model_texel = kC0;
+    const float du = 64.f / float(kTexels);  // a 64-texel footprint: the coarsest level without the check
+    EXPECT_EQ(select_path_level(g, du, 0.f, 0.f, du, 1.f, 0, metric_distortion(u, v, kTexels, kTexels, kC0)).lo, 3);
+    const std::pair<Vec3, Vec3> cases[] = {
+        {Vec3(0.f, 0.f, 0.f), v},                           // dp/du = 0 at a pole
+        {u, u * 0.5f},                                      // a zero-area (collinear) triangle
+        {Vec3(0.f, 0.f, 0.f), Vec3(0.f, 0.f, 0.f)},         // a point
+        {Vec3(nan, 0.f, 0.f), v},                           // non-finite
+        {Vec3(inf, 0.f, 0.f), v},
+        {u * 1e30f, v * 1e30f},                             // huge
+        {u * 1e-30f, v * 1e-30f},                           // tiny (stretched by 1e30)
+        {u * 1e-3f, v},                                     // a cell 1000 times narrower
+    };
+    for (const auto &[a, b] : cases) {
+        const double d = metric_distortion(a, b, kTexels, kTexels, kC0);
+        EXPECT_FALSE(d < 2.0) << a.x << " " << b.x;  // also not NaN
+        const LodSelection s = select_path_level(g, du, 0.f, 0.f, du, 1.f, 0, d);
+        EXPECT_EQ(s.lo, 0);
+        EXPECT_EQ(s.hi, 0);
+        EXPECT_TRUE(std::isfinite(s.t));
+    }
+}
+
+TEST(LodMetric, FootprintMovesToTheOriginalOverTheHalfOctaveBelowTwo) {
+    const LodChain c({1.f, 4.f, 16.f, 64.f});
+    // Up to sqrt 2: unchanged, bit for bit (also with a bias).
+    for (double d : {1.0, 1.2, 1.41421356})
+        for (double w : {0.5, 3.0, 100.0}) {
+            EXPECT_EQ(metric_footprint(c, w, d), w);
+            EXPECT_EQ(metric_footprint(c, w, d, 2.0), w);
+        }
+    // From 2 on: half the first factor (the original alone), over the bias.
+    EXPECT_NEAR(metric_footprint(c, 100.0, 2.0), 2.0, 1e-12);
+    EXPECT_NEAR(metric_footprint(c, 100.0, 50.0, 2.0), 1.0, 1e-12);
+    EXPECT_EQ(metric_footprint(c, 1.5, 3.0), 1.5);  // never up
+    EXPECT_EQ(c.select(float(metric_footprint(c, 1e30, INFINITY))).hi, 0);
+    // Between: log-linear in 2 log2 D - 1, continuous and non-increasing in D, through the finer
+    // levels (at D = 2^0.75, halfway: sqrt(64 * 2) = 11.3 texels, between x4 and x16).
+    EXPECT_NEAR(metric_footprint(c, 64.0, std::pow(2.0, 0.75)), std::sqrt(128.0), 1e-9);
+    EXPECT_EQ(c.select(float(metric_footprint(c, 64.0, std::pow(2.0, 0.75)))).lo, 1);
+    double prev = 64.0;
+    for (double d = 1.4; d <= 2.1; d += 0.001) {
+        const double w = metric_footprint(c, 64.0, d);
+        EXPECT_LE(w, prev);
+        EXPECT_LT(prev - w, 0.5);  // no jump
+        prev = w;
+    }
+}
+
+TEST(LodMetric, PathLevelReadsTheBaseSurfaceTangentsOfTheHit) {
+    LodGroup g;
+    g.chain = LodChain({1.f, 4.f, 16.f, 64.f});
+    g.texel_w = g.texel_h = kTexels;
+    SurfaceInteraction si;
+    si.dudx = si.dvdy = 64.f / float(kTexels);  // 64 texels
+    stretched(1, 1, 1.5707963267948966, si.dpdu, si.dpdv);
+    Vec3 a, b;
+    stretched(0.25, 1, 1.5707963267948966, a, b);  // the base surface: cells 4 times narrower along u
+    si.dpdu_footprint = a;
+    si.dpdv_footprint = b;
+    si.n_footprint = normalize(cross(a, b));
+    EXPECT_EQ(select_path_level(g, si, 1.f, 0).lo, 3);  // no model: no check
+    g.model_texel = kC0;
+    EXPECT_EQ(select_path_level(g, si, 1.f, 0).hi, 0);  // the base surface's stretch, not the micro-facet's
+    si.n_footprint = Vec3();  // not on microgeometry: dp/du, dp/dv (unstretched)
+    EXPECT_EQ(select_path_level(g, si, 1.f, 0).lo, 3);
+    // The expected-MSE rule sees the same move: with errors that make the coarsest level best.
+    si.n_footprint = normalize(cross(a, b));
+    g.window_error = {{}, {0.f}, {0.f}, {0.f}};
+    g.removed_variance = {0.f, 0.25f, 0.5f, 1.f};
+    EXPECT_EQ(select_path_level(g, si, 1.f, 16).hi, 0);
+    si.n_footprint = Vec3();
+    EXPECT_GE(select_path_level(g, si, 1.f, 16).lo, 2);
+}
+
+// On a shell-mapped uv sphere, the tangents at a camera hit give the analytic stretch of its
+// tiles: with square tiles at the equator (2 pi / 16 = pi / 8), D = 1 / sin(theta).
+TEST(LodMetric, UvSphereTilesStretchLikeOneOverSinTheta) {
+    const char *scene = R"({
+      "camera": {"type": "perspective", "origin": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0], "width": 8, "height": 8},
+      "integrator": {"type": "direct"},
+      "shapes": [{"type": "uvsphere", "rings": 64, "segments": 128,
+                  "displacement": {"map": {"generator": "fbm", "size": 64}, "scale": 0.001, "tiling": [16, 8]}}]
+    })";
+    auto s = meso::test::load_json_scene("lod_metric_sphere.json", scene);
+    const double c0 = 3.14159265358979 / 8 / 64;
+    for (double deg : {90.0, 60.0, 30.0, 10.0, 4.0, 0.5}) {
+        const double th = deg * 3.14159265358979 / 180.0, ph = 0.3;
+        const Vec3 n(float(std::sin(th) * std::cos(ph)), float(std::sin(th) * std::sin(ph)), float(std::cos(th)));
+        Ray ray(n * 3.f, -n);
+        SurfaceInteraction si;
+        ASSERT_TRUE(s->intersect(ray, si)) << deg;
+        double w = 0, h = 0;
+        ASSERT_TRUE(si.shape->texel_grid(w, h));
+        const double d = metric_distortion(si.dpdu_footprint, si.dpdv_footprint, w, h, c0);
+        // The triangles are flat: their u length is the chord's, at the colatitude of their rings.
+        const double ring = 3.14159265358979 / 64, lo = std::max(th - ring, 1e-9), hi = std::min(th + ring, 3.14159265358979 / 2);
+        EXPECT_GE(d, 0.99 / std::sin(hi)) << deg;
+        EXPECT_LE(d, 1.01 / std::sin(lo) + 0.01) << deg;
+        std::printf("colatitude %5.1f deg: D = %.4f (1 / sin theta = %.4f)\n", deg, d, 1 / std::sin(th));
+    }
 }

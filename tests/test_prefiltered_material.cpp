@@ -22,6 +22,7 @@
 #include "geometry/heightfield.h"
 #include "geometry/heightmap_gen.h"
 #include "geometry/interaction.h"
+#include "geometry/lod.h"
 #include "geometry/shape.h"
 #include "material_test_util.h"
 #include "prefilter/model.h"
@@ -496,4 +497,38 @@ TEST(PrefilteredLod, MseRuleReadsTheModelsLevelErrors) {
     ASSERT_EQ(mse.image.width, orig.image.width);
     for (int y = 0; y < 32; ++y)
         for (int x = 0; x < 32; ++x) ASSERT_EQ(mse.image.at(x, y, 1), orig.image.at(x, y, 1)) << x << "," << y;
+}
+
+// The metric check (geometry/lod.h): the model's cells are square, kLodTile / kMapSize wide. On
+// a plane tiled 16 x 8 a tile is 0.125 x 0.25 (the load-time check accepts a tile size between
+// the two), so D = 2 at every hit and every path sees the original: the LoD render equals the
+// render without a LoD block sample for sample. With square tiles (D = 1) level 1 is seen.
+TEST(PrefilteredLod, StretchedCellsSeeTheOriginal) {
+    tiny_model();
+    auto render = [](const std::string &name, const std::string &lod, const char *tiling) {
+        std::string text = lod_scene(lod);
+        if (lod == "null") {  // no LoD block: erase it with the comma before it
+            const size_t at = text.find("\"lod\": null"), comma = text.rfind(',', at);
+            text.erase(comma, at + 11 - comma);
+        }
+        text.replace(text.find("\"tiling\": 16"), 12, tiling);
+        auto scene = load_scene(write_scene(name, text), {});
+        if (lod != "null") {
+            EXPECT_NEAR(scene->shapes[0]->lod->model_texel, kLodTile / kMapSize, 1e-12);
+        }
+        scene->build();
+        return meso::test::render_scene(*scene, 16).image;
+    };
+    const std::string chain = R"({"factors": [1, 4], "model": "model"})";
+    const Image stretched = render("metric_lod.json", chain, "\"tiling\": [16, 8]");
+    const Image original = render("metric_orig.json", "null", "\"tiling\": [16, 8]");
+    double worst = 0;
+    for (int y = 0; y < 32; ++y)
+        for (int x = 0; x < 32; ++x)
+            for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(stretched.at(x, y, c) - original.at(x, y, c))));
+    EXPECT_LE(worst, 1e-6);
+    // Square tiles: the prefiltered level is seen, so the image is not the original's.
+    const Image square = render("metric_lod_sq.json", chain, "\"tiling\": 16");
+    const Image square_orig = render("metric_orig_sq.json", "null", "\"tiling\": 16");
+    EXPECT_GT(std::abs(centre_mean(square) - centre_mean(square_orig)), 1e-4);
 }

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <fmt/format.h>
 #include "core/error.h"
+#include "geometry/interaction.h"
 
 namespace meso {
 
@@ -126,13 +127,54 @@ LodSelection select_mse_level(const LodChain &chain, const std::vector<std::vect
     return s;
 }
 
+double metric_distortion(const Vec3 &dpdu, const Vec3 &dpdv, double texel_w, double texel_h, double model_texel) {
+    if (!(model_texel > 0.0)) return 1.0;
+    // Columns a, b: world length of one model texel's step along u and v, in units of the
+    // model's texel c0. G = [a b]^T [a b]; lambda² its eigenvalues.
+    const double su = 1.0 / (texel_w * model_texel), sv = 1.0 / (texel_h * model_texel);
+    const double a[3] = {dpdu.x * su, dpdu.y * su, dpdu.z * su}, b[3] = {dpdv.x * sv, dpdv.y * sv, dpdv.z * sv};
+    const double g11 = a[0] * a[0] + a[1] * a[1] + a[2] * a[2], g22 = b[0] * b[0] + b[1] * b[1] + b[2] * b[2];
+    const double g12 = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    // det G = |a x b|², exact for nearly parallel tangents (g11 g22 - g12² would cancel).
+    const double c0 = a[1] * b[2] - a[2] * b[1], c1 = a[2] * b[0] - a[0] * b[2], c2 = a[0] * b[1] - a[1] * b[0];
+    const double det = c0 * c0 + c1 * c1 + c2 * c2;
+    const double l1 = 0.5 * (g11 + g22 + std::sqrt((g11 - g22) * (g11 - g22) + 4.0 * g12 * g12));
+    const double l2 = det / l1;  // the smaller eigenvalue, without cancellation
+    if (!(l2 > 0.0) || !std::isfinite(l1) || !std::isfinite(l2)) return INFINITY;
+    const double d = std::sqrt(std::max(l1, 1.0 / l2));
+    return std::isfinite(d) ? d : INFINITY;
+}
+
+double metric_footprint(const LodChain &chain, double texels, double distortion, double bias) {
+    constexpr double sqrt2 = 1.4142135623730951;
+    if (!(distortion > sqrt2) || chain.levels() < 2) return texels;  // also D = NaN (not produced)
+    // The rule takes the original alone below half the first factor (lod.h), bias applied.
+    const double floor_w = 0.5 * double(chain.factor(1)) / (bias > 0.0 && std::isfinite(bias) ? bias : 1.0);
+    if (!(texels > floor_w)) return texels;
+    if (!(distortion < 2.0) || !std::isfinite(texels)) return floor_w;
+    const double q = 2.0 * std::log2(distortion) - 1.0;  // 0 at sqrt 2, 1 at 2
+    return std::exp((1.0 - q) * std::log(texels) + q * std::log(floor_w));
+}
+
 LodSelection select_path_level(const LodGroup &g, float dudx, float dudy, float dvdx, float dvdy,
-                               float footprint_scale, int spp) {
+                               float footprint_scale, int spp, double distortion) {
     const float w = footprint_texels(dudx, dudy, dvdx, dvdy, g.texel_w, g.texel_h);
-    if (g.window_error.empty()) return g.chain.select(w, g.bias);
+    // The metric check moves the footprint each rule compares with the factors.
+    auto checked = [&](float texels) { return float(metric_footprint(g.chain, texels, distortion, g.bias)); };
+    if (g.window_error.empty()) return g.chain.select(checked(w), g.bias);
     const float scale = footprint_scale > 0.f && std::isfinite(footprint_scale) ? footprint_scale : 1.f;
     const float n = spp > 0 ? float(spp) : 1.f / (scale * scale);
-    return select_mse_level(g.chain, g.window_error, g.removed_variance, w / scale, n, g.bias);
+    return select_mse_level(g.chain, g.window_error, g.removed_variance, checked(w / scale), n, g.bias);
+}
+
+LodSelection select_path_level(const LodGroup &g, const SurfaceInteraction &si, float footprint_scale, int spp) {
+    double d = 1.0;
+    if (g.model_texel > 0.0) {
+        const bool micro = length_squared(si.n_footprint) > 0.f;
+        d = metric_distortion(micro ? si.dpdu_footprint : si.dpdu, micro ? si.dpdv_footprint : si.dpdv, g.texel_w,
+                              g.texel_h, g.model_texel);
+    }
+    return select_path_level(g, si.dudx, si.dudy, si.dvdx, si.dvdy, footprint_scale, spp, d);
 }
 
 }  // namespace meso

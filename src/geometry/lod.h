@@ -24,14 +24,37 @@
 // footprint of one sample, render/differentials.h): at 64 spp and more a level of factor F is
 // chosen where a PIXEL covers about 8 F texels.
 //
+// Metric check (prefiltered models only). A model describes square cells of one world size c0
+// (its --tile-size over its map width): the slopes of the detail a level removes are those of
+// that metric. On a shape whose uv map stretches the cells (a uv sphere's tiles shrink along u
+// like sin(theta) towards the poles; non-square tilings; sheared uvs), the removed detail has
+// the model's heights over other widths: along a principal axis of the local metric, where one
+// model texel measures lambda_i c0 (lambda_1 >= lambda_2 the singular values of
+// [dp/du / (W c0), dp/dv / (H c0)], W x H the texel grid), its slopes are 1 / lambda_i times
+// the model's, so the level's NDF and tables describe another surface. The distortion
+//     D = max(lambda_1, 1 / lambda_2) >= 1
+// (1: the model's metric) is held to the chain's own resolution: a cell stretched by 2 along an
+// axis is, there, a cell of the next octave of factors, i.e. the level describes detail of
+// another level's scale. Up to D = sqrt 2 (half an octave) the rule is unchanged; from sqrt 2
+// to 2 the footprint the rule sees is moved log-linearly, in 2 log2 D - 1, down to half the
+// first factor (where the rule takes the original alone), passing through the finer levels
+// (which remove less detail, so their stretched slopes err less); at D >= 2, and where the
+// metric is degenerate (dp/du = 0 at a pole, a zero-area or non-finite triangle), the path sees
+// the original. The load-time check (lod/lod_build.cpp: the model's tile size lies between the
+// shape's mean tile lengths) is global; this one is local, per camera hit. Measured on the ball
+// bench scene, the pole cap (sin theta < 0.5, D > 1.8) held 70% of ours' bias².
+//
 // Blending: (a) trace the path on both levels and blend contributions with (1 - t, t);
 // (b) pick one level per path with probability t of the coarser one (same expectation,
 // about half the cost). A path must keep the level it picked for all its rays.
 #pragma once
 #include <string>
 #include <vector>
+#include "core/vec.h"
 
 namespace meso {
+
+struct SurfaceInteraction;
 
 struct LodSelection {
     int lo = 0, hi = 0;  ///< neighbouring levels (equal at the ends of the chain)
@@ -105,7 +128,22 @@ struct LodGroup {
     /// "Expected-MSE rule" below.
     std::vector<std::vector<float>> window_error;
     std::vector<float> removed_variance;
+    /// World size of one texel of the map the levels' prefiltered model was made for (square
+    /// cells: its tile_size over its map width); 0: the levels are not a model's (explicit
+    /// materials, box-downsampled geometry), no metric check. See "Metric check" above.
+    double model_texel = 0;
 };
+
+/// D of the metric check above for uv tangents dp/du, dp/dv (world per unit uv) on a texel grid
+/// of texel_w x texel_h texels per unit uv and a model texel of world size `model_texel`.
+/// Returns 1 when model_texel <= 0 (nothing to check), +infinity where the metric is
+/// degenerate (a zero or non-finite tangent, parallel tangents).
+double metric_distortion(const Vec3 &dpdu, const Vec3 &dpdv, double texel_w, double texel_h, double model_texel);
+
+/// The footprint (texels, before `bias`) the level rule sees under distortion D: `texels`
+/// itself up to D = sqrt 2, then moved log-linearly down to half the chain's first factor (over
+/// `bias`) at D = 2 and beyond (never up: a footprint already below stays).
+double metric_footprint(const LodChain &chain, double texels, double distortion, double bias = 1.0);
 
 // Expected-MSE rule (lod "rule": "mse", a model that measured E and V for every level; opt-in:
 // see docs/bench.md "Expected-MSE level choice" for why it is not the default). A pixel of
@@ -132,7 +170,13 @@ LodSelection select_mse_level(const LodChain &chain, const std::vector<std::vect
 /// per-sample factor; the pixel's footprint is the ray's / footprint_scale), in a render of
 /// `spp` samples per pixel (<= 0: 1 / footprint_scale²). Paper 004 §7.2: one level per path.
 /// With measured errors, the expected-MSE rule; else the per-sample footprint rule.
+/// `distortion`: D of the metric check at the hit (1: none).
 LodSelection select_path_level(const LodGroup &g, float dudx, float dudy, float dvdx, float dvdy,
-                               float footprint_scale = 1.f, int spp = 0);
+                               float footprint_scale = 1.f, int spp = 0, double distortion = 1.0);
+
+/// The same at a camera hit `si` on a shape of `g` whose differentials are computed: the uv
+/// derivatives and, with a model (g.model_texel > 0), D from the base surface's tangents
+/// (dpdu_footprint, dpdv_footprint where the hit is on microgeometry, else dpdu, dpdv).
+LodSelection select_path_level(const LodGroup &g, const SurfaceInteraction &si, float footprint_scale, int spp);
 
 }  // namespace meso

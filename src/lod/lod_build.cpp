@@ -291,6 +291,9 @@ std::vector<std::shared_ptr<Shape>> build_lod_levels(const LodSpec &spec, const 
     group->bias = spec.bias;
     group->blend = spec.blend;
     shell->texel_grid(group->texel_w, group->texel_h);
+    // The metric check (geometry/lod.h): the model's cells are square, tile_size / map width wide
+    // (both of the map prefiltered, a clamp/mirror extension included, as the field here).
+    if (model && spec.materials.empty()) group->model_texel = model->tile_size / double(model->map_width);
     if (spec.mse_rule) measured_errors(spec, model ? &*model : nullptr, *group);
     shape->lod = group;
     shape->lod_level = 0;
