@@ -306,6 +306,7 @@ private:
             return float(f < 1.0 ? f : 0.0);  // floor rounding can give exactly 1
         };
         l.c.uv = Vec2(wrap(double(ctx.uv.x) * m.tu), wrap(double(ctx.uv.y) * m.tv));
+        if (const prefilter::SvLobeBrdf *lf = m.f->lobe_form()) lf->prefetch(l.c.uv);  // overlaps the frame's work
         if (length_squared(ctx.n_macro) > 0.f) {
             l.rotated = true;
             l.macro = uv_frame(normalize(ctx.n_macro), ctx.dpdu_macro, ctx.dpdv_macro);

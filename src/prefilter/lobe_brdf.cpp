@@ -337,6 +337,13 @@ size_t SvLobeBrdf::patch_index(Vec2 uv) const {
     return size_t(j) * size_t(m_w) + size_t(i);
 }
 
+void SvLobeBrdf::prefetch(Vec2 uv) const {
+    const size_t patch = patch_index(uv);
+    const char *p = reinterpret_cast<const char *>(m_blocks.data() + m_first_block[patch]);
+    const size_t bytes = size_t(m_first_block[patch + 1] - m_first_block[patch]) * sizeof(LobeBlock);
+    for (size_t o = 0; o < bytes; o += 64) _mm_prefetch(p + o, _MM_HINT_T0);
+}
+
 std::pair<const SvLobeBrdf::Lobe *, const SvLobeBrdf::Lobe *> SvLobeBrdf::lobes(size_t k) const {
     const Lobe *base = m_lobes.data();
     return {base + m_first[k], base + m_first[k + 1]};

@@ -168,6 +168,9 @@ public:
     bool is_reciprocal() const override { return false; }
     std::string to_string() const override;
 
+    /// Starts loading the lobes of the patch holding uv into the cache (a shading point's first
+    /// look at its patch misses it on fine levels: call early, with the work before eval_pdf).
+    void prefetch(Vec2 uv) const;
     /// eval(ctx, wo, wi[b]) for b < n into out[b] (the prefilter's next-event splat).
     void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
     /// The lobes of the patch holding uv: [first, last).
