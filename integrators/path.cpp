@@ -2,12 +2,15 @@
 // importance sampling (power heuristic), Russian roulette and a maximum depth; `direct` is the
 // same algorithm restricted to two segments (emitters seen directly + one bounce), no roulette.
 //
-// Parameters (`path`; `direct` takes hide_emitters and differentials):
+// Parameters (`path`; `direct` takes hide_emitters, differentials and lod_hints):
 //   max_depth      int   maximum path segments, -1 = unbounded (Mitsuba semantics)  -1
 //   rr_depth       int   depth at which Russian roulette starts, >= 1               5
 //   hide_emitters  bool  emitters seen directly by the camera render black          false
 //   differentials  bool  ray-differential footprints at every hit (textures and     true
 //                        LoD read them; false measures their cost)
+//   lod_hints      bool  LoD chains: trace the camera ray first at the level its     true
+//                        pixel's hint guesses (trace_lod; false: always the coarsest
+//                        level first, then the path's level: measures what they save)
 //   leadr_env_quadrature  bool  at points whose material has an environment          false
 //                         quadrature (Material::has_env_quadrature: `leadr`), the environment
 //                         comes from it, unoccluded; no env NEE or env hits from there
@@ -27,6 +30,7 @@
 // convex object. Measured on scenes/ndf/filtering.json (180x120): the LEADR sphere alone
 // agrees with 1024-spp path tracing to -1.7% (env_quadrature 8), -0.5% (16), +0.1% (32)
 // noise-free at 16 spp; with its five neighbours it is 4% brighter (their occlusion).
+#include <atomic>
 #include <fmt/format.h>
 #include <memory>
 #include <optional>
@@ -38,6 +42,7 @@
 #include "geometry/lod.h"
 #include "geometry/shape.h"
 #include "lights/prefiltered_environment.h"
+#include "render/camera.h"
 #include "render/differentials.h"
 #include "render/integrator.h"
 #include "render/scene.h"
@@ -49,13 +54,20 @@ namespace meso {
 /// The mask bit of a path at the coarsest level of every chain: a chain's last level k is
 /// seen by mask bits k..31 (geometry/embree_accel.cpp), so bit 31 sees every chain's last level.
 constexpr int LodCoarsestLevel = 31;
+/// A pixel's LoD hint (PathIntegrator::pixel_hint): lo | hi << 8 | round(t 65535) << 16 of its
+/// LodSelection (levels < 32, so no hint equals the two markers), or one of the markers.
+constexpr uint32_t kHintUnset = 0xFFFFFFFFu;  ///< not computed yet
+constexpr uint32_t kHintNone = 0xFFFFFFFEu;   ///< the centre misses the LoD shapes, or sees the coarsest level
+/// Images larger than this (4 bytes a pixel) trace without hints.
+constexpr size_t kMaxHintPixels = size_t(1) << 26;
 
 class PathIntegrator final : public Integrator {
 public:
     PathIntegrator(int max_depth, int rr_depth, bool hide_emitters, bool differentials, bool env_quadrature,
-                   std::string name)
+                   bool lod_hints, std::string name)
         : m_max_depth(max_depth), m_rr_depth(rr_depth), m_hide_emitters(hide_emitters),
-          m_differentials(differentials), m_leadr_env_quadrature(env_quadrature), m_name(std::move(name)) {}
+          m_differentials(differentials), m_leadr_env_quadrature(env_quadrature), m_lod_hints(lod_hints),
+          m_name(std::move(name)) {}
     Spectrum li(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats) const override;
     std::string to_string() const override;
     /// Prefilters the infinite lights when leadr_env_quadrature is on.
@@ -79,6 +91,13 @@ private:
                    const FirstHit *first) const;
     /// A scene with LoD shapes: the level of the path from the camera ray (LodGroup's rule).
     Spectrum trace_lod(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats) const;
+    /// The level selection of the sample's pixel (its hint: see trace_lod), made at the pixel's
+    /// first sample; false where there is none (no pixel, or the hint is the coarsest level).
+    bool pixel_hint(const Scene &scene, const RayDifferential &ray, const Sampler &sampler, RenderStats &stats,
+                    LodSelection &out) const;
+    /// The hint of pixel (x, y): the selection of the camera ray through its centre (lens centre,
+    /// the sample's footprint scale) at its hit on the coarsest levels, encoded (see path.cpp).
+    uint32_t centre_hint(const Scene &scene, int x, int y, float footprint_scale, RenderStats &stats) const;
     struct PathState;
     /// Environment radiance along an escaped ray, MIS-weighted against light sampling.
     void add_escaped(const Scene &scene, const RayDifferential &ray, PathState &st) const;
@@ -97,10 +116,15 @@ private:
     bool m_differentials;  ///< ray-differential footprints at every hit ("differentials")
     bool m_use_differentials = true;  ///< m_differentials and a material of the scene reads them (preprocess)
     bool m_leadr_env_quadrature;
+    bool m_lod_hints;  ///< "lod_hints" (trace_lod)
     std::string m_name;
     /// The largest last level of the scene's LoD chains; -1: no LoD shape (no LoD bookkeeping).
     /// A path at level >= this sees what a ray with the coarsest mask sees (preprocess).
     int m_lod_last = -1;
+    /// Per-pixel LoD hints (pixel_hint), camera width x height, kHintUnset until the pixel's
+    /// first sample; null without LoD chains of two levels or more (or past kMaxHintPixels).
+    std::shared_ptr<std::atomic<uint32_t>[]> m_hints;
+    int m_hint_w = 0, m_hint_h = 0;
     /// The scene's infinite lights, prefiltered (leadr_env_quadrature only).
     std::vector<std::shared_ptr<const PrefilteredEnvironment>> m_envs;
 };
@@ -112,6 +136,15 @@ void PathIntegrator::preprocess(const Scene &scene) {
     m_lod_last = -1;
     for (const auto &shape : scene.shapes)
         if (shape->lod) m_lod_last = std::max(m_lod_last, shape->lod->chain.levels() - 1);
+    m_hints.reset();
+    m_hint_w = m_hint_h = 0;
+    const size_t pixels = scene.camera ? size_t(scene.camera->width()) * size_t(scene.camera->height()) : 0;
+    if (m_lod_hints && m_lod_last > 0 && pixels > 0 && pixels <= kMaxHintPixels) {
+        m_hints.reset(new std::atomic<uint32_t>[pixels]);
+        for (size_t i = 0; i < pixels; ++i) m_hints[i].store(kHintUnset, std::memory_order_relaxed);
+        m_hint_w = scene.camera->width();
+        m_hint_h = scene.camera->height();
+    }
     m_envs.clear();
     if (m_leadr_env_quadrature)
         for (const Light *env : scene.infinite_lights) m_envs.push_back(PrefilteredEnvironment::from_light(*env));
@@ -136,37 +169,103 @@ struct PathIntegrator::PathState {
 
 Spectrum PathIntegrator::trace_lod(const Scene &scene, RayDifferential ray, Sampler &sampler,
                                    RenderStats &stats) const {
-    // The camera ray is traced against the coarsest level of every chain (the cheapest shells)
-    // first; the footprint it gives is that of the base surface, the same for every level
-    // (ShellShape: footprints are measured on the h = const plane), up to the level's height
-    // at the hit. A miss or a shape without LoD leaves the path at the coarsest level.
-    ray.mask = lod_ray_mask(LodCoarsestLevel);
+    // The level comes from the camera ray's hit on the coarsest level of every chain: the
+    // footprint there is that of the base surface, the same for every level (ShellShape:
+    // footprints are measured on the h = const plane), up to the level's height at the hit. A
+    // miss or a shape without LoD leaves the path at the coarsest level. A path whose level is
+    // finer must then retrace the camera ray at its level: two traces. So the camera ray is
+    // traced first at the level its PIXEL's hint guesses (the selection of the ray through the
+    // pixel's centre, made once per pixel and render: a function of the pixel alone, so renders
+    // stay independent of threads, tiles, passes, crops and ranks), drawn with the same uniform
+    // as the choice below; when the hit there selects that level again (nearly always: the
+    // footprint varies little within a pixel), it is the path's first hit, and the coarsest
+    // trace is saved. Otherwise the chosen level retraces; a guess that shows no LoD shape
+    // falls back on the coarsest level. The choice then differs from the coarsest-first order
+    // only by the footprint's dependence on the level's height at the hit (relative size:
+    // height / distance) and where a finer level covers a pixel the coarsest does not (edges).
+    float u = -1.f;  // the level's uniform, once drawn
+    int traced = LodCoarsestLevel;
+    LodSelection hint;
+    if (pixel_hint(scene, ray, sampler, stats, hint)) {
+        if (hint.hi != hint.lo) u = sampler.get_1d();
+        const int guess = hint.hi != hint.lo && u < hint.t ? hint.hi : hint.lo;
+        if (guess < m_lod_last) traced = guess;
+    }
     FirstHit first;
+    ray.mask = lod_ray_mask(traced);
     ++stats.rays;
     first.hit = scene.intersect(ray, first.si);
+    if (traced != LodCoarsestLevel && !(first.hit && first.si.shape->lod)) {
+        traced = LodCoarsestLevel;  // the guess shows no LoD shape: the coarsest level decides
+        ray.mask = lod_ray_mask(traced);
+        ++stats.rays;
+        first = FirstHit();  // a fresh interaction: a shape's fill need not reset every field
+        first.hit = scene.intersect(ray, first.si);
+    }
     if (!first.hit || !first.si.shape->lod) return trace(scene, ray, sampler, stats, &first);
     // The footprint on the LoD shape picks the level (paper 004 §7.2); the whole path then sees
     // only that level. A level at or beyond every chain's last one sees the same geometry as the
-    // coarsest mask: the camera ray's hit is kept; other levels retrace it.
-    // With a model's measured errors the level is the one of least expected pixel MSE at the
-    // pixel's footprint and the render's spp; else the camera ray's per-sample footprint picks it
-    // (the pixel's times max(1/8, 1/sqrt(spp)); geometry/lod.h has both rules, and the metric
-    // check that keeps finer levels where the uv map stretches the model's cells).
+    // coarsest mask. With a model's measured errors the level is the one of least expected pixel
+    // MSE at the pixel's footprint and the render's spp; else the camera ray's per-sample
+    // footprint picks it (the pixel's times max(1/8, 1/sqrt(spp)); geometry/lod.h has both rules,
+    // and the metric check that keeps finer levels where the uv map stretches the model's cells).
     first.si.compute_differentials(ray, scene.camera.get());
     first.differentials = true;
     const LodGroup &g = *first.si.shape->lod;
     const LodSelection sel = select_path_level(g, first.si, ray.footprint_scale, samples_per_pixel());
+    auto seen = [&](int level) { return std::min(level, m_lod_last); };
     auto at_level = [&](int level) {
-        if (level >= m_lod_last) return trace(scene, ray, sampler, stats, &first);
+        if (seen(level) == seen(traced)) return trace(scene, ray, sampler, stats, &first);
         RayDifferential r = ray;
-        r.mask = lod_ray_mask(level);
+        r.mask = lod_ray_mask(level >= m_lod_last ? LodCoarsestLevel : level);
         return trace(scene, r, sampler, stats, nullptr);
     };
     if (sel.hi != sel.lo && g.blend == LodBlend::Blend)
         return at_level(sel.lo) * (1.f - sel.t) + at_level(sel.hi) * sel.t;
     int chosen = sel.lo;
-    if (sel.hi != sel.lo) chosen = sampler.get_1d() < sel.t ? sel.hi : sel.lo;
+    if (sel.hi != sel.lo) {
+        if (u < 0.f) u = sampler.get_1d();
+        chosen = u < sel.t ? sel.hi : sel.lo;
+    }
     return at_level(chosen);
+}
+
+bool PathIntegrator::pixel_hint(const Scene &scene, const RayDifferential &ray, const Sampler &sampler,
+                                RenderStats &stats, LodSelection &out) const {
+    const int x = sampler.pixel_x(), y = sampler.pixel_y();
+    if (!m_hints || x < 0 || y < 0 || x >= m_hint_w || y >= m_hint_h) return false;
+    // One pixel's samples are rendered by one thread at a time (a pass holds each pixel once,
+    // passes are sequential); a race would only store the same value twice.
+    std::atomic<uint32_t> &slot = m_hints[size_t(y) * size_t(m_hint_w) + size_t(x)];
+    uint32_t h = slot.load(std::memory_order_relaxed);
+    if (h == kHintUnset) {
+        h = centre_hint(scene, x, y, ray.footprint_scale, stats);
+        slot.store(h, std::memory_order_relaxed);
+    }
+    if (h == kHintNone) return false;
+    out.lo = int(h & 0xFFu);
+    out.hi = int((h >> 8) & 0xFFu);
+    out.t = float(h >> 16) * (1.f / 65535.f);
+    return true;
+}
+
+uint32_t PathIntegrator::centre_hint(const Scene &scene, int x, int y, float footprint_scale,
+                                     RenderStats &stats) const {
+    CameraSample cs;
+    cs.film = Vec2(float(x) + 0.5f, float(y) + 0.5f);
+    cs.lens = Vec2(0.5f, 0.5f);
+    RayDifferential c;
+    if (!(scene.camera->generate_ray(cs, c) > 0.f)) return kHintNone;
+    c.scale_differentials(footprint_scale / c.footprint_scale);  // as the renderer scales the sample's
+    c.mask = lod_ray_mask(LodCoarsestLevel);
+    SurfaceInteraction si;
+    ++stats.rays;
+    if (!scene.intersect(c, si) || !si.shape->lod) return kHintNone;
+    si.compute_differentials(c, scene.camera.get());
+    const LodSelection s = select_path_level(*si.shape->lod, si, c.footprint_scale, samples_per_pixel());
+    if (s.lo >= m_lod_last) return kHintNone;  // the coarsest level: traced first anyway
+    const float t = std::clamp(s.t, 0.f, 1.f);
+    return uint32_t(s.lo) | uint32_t(s.hi) << 8 | uint32_t(std::lround(t * 65535.f)) << 16;
 }
 
 Spectrum PathIntegrator::trace(const Scene &scene, RayDifferential ray, Sampler &sampler, RenderStats &stats,
@@ -334,10 +433,10 @@ void PathIntegrator::add_light_sample(const Scene &scene, const RayDifferential 
 }
 
 std::string PathIntegrator::to_string() const {
-    return fmt::format("{} (max_depth {}, rr_depth {}{}{}{})", m_name, m_max_depth, m_rr_depth,
+    return fmt::format("{} (max_depth {}, rr_depth {}{}{}{}{})", m_name, m_max_depth, m_rr_depth,
                        m_hide_emitters ? ", hide_emitters" : "",
                        m_leadr_env_quadrature ? ", environment by material quadrature" : "",
-                       m_differentials ? "" : ", no differentials");
+                       m_differentials ? "" : ", no differentials", m_lod_hints ? "" : ", no LoD hints");
 }
 
 MESO_REGISTER_INTEGRATOR("path", "unidirectional path tracing, NEE + MIS, Russian roulette",
@@ -347,13 +446,15 @@ MESO_REGISTER_INTEGRATOR("path", "unidirectional path tracing, NEE + MIS, Russia
                              const int rr = p.get_int("rr_depth", 5, Range::at_least(1));
                              return std::make_shared<PathIntegrator>(max_depth, rr, p.get_bool("hide_emitters", false),
                                                                      p.get_bool("differentials", true),
-                                                                     p.get_bool("leadr_env_quadrature", false), "path");
+                                                                     p.get_bool("leadr_env_quadrature", false),
+                                                                     p.get_bool("lod_hints", true), "path");
                          });
 
 MESO_REGISTER_INTEGRATOR("direct", "direct illumination with MIS (emitters + one bounce)",
                          [](const Properties &p) -> std::shared_ptr<Integrator> {
                              return std::make_shared<PathIntegrator>(2, -1, p.get_bool("hide_emitters", false),
-                                                                     p.get_bool("differentials", true), false, "direct");
+                                                                     p.get_bool("differentials", true), false,
+                                                                     p.get_bool("lod_hints", true), "direct");
                          });
 
 }  // namespace meso

@@ -235,7 +235,15 @@ public:
         case Estimator::Stratified:
             ok = m.f->patch(l.c.uv).sample_stratified(l.c, mo, double(ctx.u_eval), m.set_nodes, u_lobe, u, bs);
             break;
-        default: ok = f.sample(l.c, mo, u_lobe, u, bs); break;
+        default:
+            if (const prefilter::SvLobeBrdf *lf = m.f->lobe_form(); lf && l.rotated) {
+                // The closed form's direction alone: its value and pdf come from the one pass below.
+                ok = lf->sample_direction(l.c, mo, u_lobe, u, bs.wi);
+                bs.flags = lf->flags();
+            } else {
+                ok = f.sample(l.c, mo, u_lobe, u, bs);
+            }
+            break;
         }
         if (!ok) return false;
         // Back to the shading frame.
@@ -245,7 +253,8 @@ public:
         if (!(mi.z > 0.f)) return false;
         // Not rotated: bs is exact at mi (weight = f'_low / pdf, or the one-node estimate / pdf_k).
         // Rotated, quadrature: one eval_pdf pass at the direction the integrator will see (after
-        // the rotation's round-off), so that sample, pdf and eval agree exactly. Rotated,
+        // the rotation's round-off), so that sample, pdf and eval agree exactly (the closed form
+        // only drew the direction above: this is its one pass). Rotated,
         // stochastic or stratified: the base's record, as in MultiLobeBrdf::sample_stochastic
         // (node k's value and pdf, or the set's, at the direction before the rotations round it).
         float p = bs.pdf;
@@ -297,6 +306,7 @@ private:
             return float(f < 1.0 ? f : 0.0);  // floor rounding can give exactly 1
         };
         l.c.uv = Vec2(wrap(double(ctx.uv.x) * m.tu), wrap(double(ctx.uv.y) * m.tv));
+        if (const prefilter::SvLobeBrdf *lf = m.f->lobe_form()) lf->prefetch(l.c.uv);  // overlaps the frame's work
         if (length_squared(ctx.n_macro) > 0.f) {
             l.rotated = true;
             l.macro = uv_frame(normalize(ctx.n_macro), ctx.dpdu_macro, ctx.dpdv_macro);

@@ -99,7 +99,9 @@ enum class LodBlend { Stochastic, Blend };
 /// carry the Embree mask bit k and see level min(k, last) of each chain (a chain's last level
 /// answers to bits last..31; geometry/embree_accel.h traces each level in its own scene).
 ///   1. The camera ray is traced first with bit 31, i.e. against the coarsest level of every
-///      chain (the cheapest shells).
+///      chain (the cheapest shells). (With the integrator's lod_hints, first at the level its
+///      pixel's hint guesses, which saves this trace where the hit there picks that level again;
+///      integrators/path.cpp, trace_lod.)
 ///   2. If it hits a level of an LoD shape, that shape's group picks the level from the
 ///      camera ray's per-sample footprint at the hit (select_path_level: the pixel's times
 ///      max(1/8, 1/sqrt(spp)), as texture filtering uses, so that a level's per-patch error,

@@ -337,6 +337,13 @@ size_t SvLobeBrdf::patch_index(Vec2 uv) const {
     return size_t(j) * size_t(m_w) + size_t(i);
 }
 
+void SvLobeBrdf::prefetch(Vec2 uv) const {
+    const size_t patch = patch_index(uv);
+    const char *p = reinterpret_cast<const char *>(m_blocks.data() + m_first_block[patch]);
+    const size_t bytes = size_t(m_first_block[patch + 1] - m_first_block[patch]) * sizeof(LobeBlock);
+    for (size_t o = 0; o < bytes; o += 64) _mm_prefetch(p + o, _MM_HINT_T0);
+}
+
 std::pair<const SvLobeBrdf::Lobe *, const SvLobeBrdf::Lobe *> SvLobeBrdf::lobes(size_t k) const {
     const Lobe *base = m_lobes.data();
     return {base + m_first[k], base + m_first[k + 1]};
@@ -437,13 +444,11 @@ float SvLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi)
 }
 
 const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const {
-    const bool mf = m_base.kind == LobeBase::Kind::Microfacet;
     float w[64];
     const int n = int(std::min<ptrdiff_t>(e - b, 64));
     float total = 0.f;
     for (int j = 0; j < n; ++j) {
-        const float t = dot(b[j].mu, wo);
-        w[j] = mf ? (t > 0.f ? b[j].c : 0.f) : lambert_view_weight(b[j], wo);
+        w[j] = lambert_view_weight(b[j], wo);
         total += w[j];
     }
     if (!(total > 0.f)) return nullptr;
@@ -457,25 +462,65 @@ const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const V
     return nullptr;
 }
 
-bool SvLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
+bool SvLobeBrdf::choose_block(size_t patch, const Vec3 &wo, float u_lobe, uint32_t &bo, int &qo) const {
+    const uint32_t first = m_first_block[patch], last = m_first_block[patch + 1];
+    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
+    // c_j [μ_j·ωo > 0] of block b's lanes (μ·ωo as dot(): (x + y) + z; padding lanes have c = 0).
+    auto weights = [&](uint32_t b, float *w) {
+        const LobeBlock &B = m_blocks[b];
+        const __m128 t = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_load_ps(B.mx), ox), _mm_mul_ps(_mm_load_ps(B.my), oy)),
+                                    _mm_mul_ps(_mm_load_ps(B.mz), oz));
+        _mm_storeu_ps(w, _mm_and_ps(_mm_cmpgt_ps(t, _mm_setzero_ps()), _mm_load_ps(B.c)));
+    };
+    // choose's arithmetic in choose's order (lobe by lobe; a padding lane adds +0): the same lobe.
+    float total = 0.f;
+    for (uint32_t b = first; b < last; ++b) {
+        float w[4];
+        weights(b, w);
+        for (int q = 0; q < 4; ++q) total += w[q];
+    }
+    if (!(total > 0.f)) return false;
+    float target = u_lobe * total;
+    bool found = false;
+    for (uint32_t b = first; b < last; ++b) {
+        float w[4];
+        weights(b, w);
+        for (int q = 0; q < 4; ++q) {
+            if (!(w[q] > 0.f)) continue;
+            bo = b, qo = q, found = true;  // also the round-off fallback: the last lobe with weight
+            if (target < w[q]) return true;
+            target -= w[q];
+        }
+    }
+    return found;
+}
+
+bool SvLobeBrdf::sample_microfacet(const Vec3 &mu, float alpha, const Vec3 &wo, Vec2 u, Vec3 &wi) const {
+    // The full NDF D (m·μ) in the lobe's frame: tan²θ in closed form.
+    const float ux = std::min(u.x, 0x1.fffffep-1f), a2 = alpha * alpha;
+    const float tan2 = m_base.type == MicrofacetType::GGX ? a2 * ux / (1.f - ux) : -a2 * std::log1p(-ux);
+    const float ct = 1.f / std::sqrt(1.f + tan2), st = std::sqrt(std::max(0.f, 1.f - ct * ct));
+    const float phi = 2.f * kPiF * u.y;
+    const Vec3 m = normalize(Frame(mu).to_world(Vec3(st * std::cos(phi), st * std::sin(phi), ct)));
+    const float d = dot(wo, m);
+    if (!(d > 0.f)) return false;
+    wi = normalize(m * (2.f * d) - wo);
+    return dot(mu, wi) > 0.f;  // outside the lobe's hemisphere: pdf counts it out
+}
+
+bool SvLobeBrdf::sample_direction(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, Vec3 &wi) const {
     if (!(wo.z > 0.f)) return false;
     const size_t patch = patch_index(ctx.uv);
-    const auto [b, e] = lobes(patch);
-    const Lobe *l = choose(b, e, wo, u_lobe);
-    if (!l) return false;
-    Vec3 wi;
     if (m_base.kind == LobeBase::Kind::Microfacet) {
-        // The full NDF D (m·μ) in the lobe's frame: tan²θ in closed form.
-        const float ux = std::min(u.x, 0x1.fffffep-1f), a2 = l->alpha * l->alpha;
-        const float tan2 = m_base.type == MicrofacetType::GGX ? a2 * ux / (1.f - ux) : -a2 * std::log1p(-ux);
-        const float ct = 1.f / std::sqrt(1.f + tan2), st = std::sqrt(std::max(0.f, 1.f - ct * ct));
-        const float phi = 2.f * kPiF * u.y;
-        const Vec3 m = normalize(Frame(l->mu).to_world(Vec3(st * std::cos(phi), st * std::sin(phi), ct)));
-        const float d = dot(wo, m);
-        if (!(d > 0.f)) return false;
-        wi = normalize(m * (2.f * d) - wo);
-        if (!(dot(l->mu, wi) > 0.f)) return false;  // outside the lobe's hemisphere (pdf counts it out)
+        uint32_t b = 0;
+        int q = 0;
+        if (!choose_block(patch, wo, u_lobe, b, q)) return false;
+        const LobeBlock &B = m_blocks[b];
+        if (!sample_microfacet(Vec3(B.mx[q], B.my[q], B.mz[q]), B.alpha[q], wo, u, wi)) return false;
     } else {
+        const auto [lb, le] = lobes(patch);
+        const Lobe *l = choose(lb, le, wo, u_lobe);
+        if (!l) return false;
         // t = μ·ωi with density C(t, κ_j) / mass, the azimuth about μ uniform: the density of
         // ωi is the lobe's pdf term C(μ·ωi, κ_j) · inv_mass exactly (the vMF-convolved clamped
         // cosine: a normal drawn from the lobe, then a cosine-weighted direction about it).
@@ -483,9 +528,14 @@ bool SvLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe,
         const float st = std::sqrt(std::max(0.f, 1.f - t * t)), phi = 2.f * kPiF * u.y;
         wi = normalize(Frame(l->mu).to_world(Vec3(st * std::cos(phi), st * std::sin(phi), t)));
     }
-    if (!(wi.z > 0.f)) return false;
+    return wi.z > 0.f;
+}
+
+bool SvLobeBrdf::sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const {
+    Vec3 wi;
+    if (!sample_direction(ctx, wo, u_lobe, u, wi)) return false;
     float p = 0.f;
-    const Spectrum f = eval_pdf_patch(ctx, patch, wo, wi, &p);
+    const Spectrum f = eval_pdf_patch(ctx, patch_index(ctx.uv), wo, wi, &p);
     if (!(p > 0.f) || !std::isfinite(p)) return false;
     out.wi = wi;
     out.pdf = p;

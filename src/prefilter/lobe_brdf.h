@@ -159,11 +159,18 @@ public:
     float pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override;
     Spectrum eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf) const override;
     bool sample(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, BSDFSample &out) const override;
+    /// sample's direction alone (the lobe choice and the draw, no eval_pdf): false where sample
+    /// fails before its eval_pdf. For a caller that evaluates at another direction anyway (the
+    /// `prefiltered` material on microgeometry, after the rotation back to the shading frame).
+    bool sample_direction(const ShadingContext &ctx, const Vec3 &wo, float u_lobe, Vec2 u, Vec3 &wi) const;
     uint32_t flags() const override;
     Spectrum albedo_hint(const ShadingContext &ctx) const override;
     bool is_reciprocal() const override { return false; }
     std::string to_string() const override;
 
+    /// Starts loading the lobes of the patch holding uv into the cache (a shading point's first
+    /// look at its patch misses it on fine levels: call early, with the work before eval_pdf).
+    void prefetch(Vec2 uv) const;
     /// eval(ctx, wo, wi[b]) for b < n into out[b] (the prefilter's next-event splat).
     void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
     /// The lobes of the patch holding uv: [first, last).
@@ -187,8 +194,13 @@ private:
                               float *pdf) const;
     /// A Lambertian lobe's weight towards ωo, v_j(ωo) of the header (P_j ∝ v_j).
     float lambert_view_weight(const Lobe &l, const Vec3 &wo) const;
-    /// The lobe chosen by u_lobe for wo (P_j of the header); null when none faces wo.
+    /// The Lambertian lobe chosen by u_lobe for wo (P_j of the header); null when none faces wo.
     const Lobe *choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const;
+    /// choose for a microfacet base, from the patch's blocks (the data eval_pdf_microfacet reads,
+    /// so a vertex touches one lobe array, not two): the same lobe as choose, as block b, lane q.
+    bool choose_block(size_t patch, const Vec3 &wo, float u_lobe, uint32_t &b, int &q) const;
+    /// The microfacet draw about lobe (μ, α') (see the header): false outside μ's hemisphere.
+    bool sample_microfacet(const Vec3 &mu, float alpha, const Vec3 &wo, Vec2 u, Vec3 &wi) const;
 
     /// Four lobes of one patch by component (eval_pdf_microfacet's SSE pass); unused lanes have
     /// c = 0 and μ = 0 (they face nothing).

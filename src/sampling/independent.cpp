@@ -22,7 +22,7 @@ class IndependentSampler final : public Sampler {
 public:
     explicit IndependentSampler(uint64_t seed) { set_seed(seed); }
 
-    void start_pixel_sample(int px, int py, uint32_t index) override {
+    void start(int px, int py, uint32_t index) override {
         uint64_t pixel = uint64_t(uint32_t(px)) | (uint64_t(uint32_t(py)) << 32);
         uint64_t h = hash_combine(hash_combine(mix_bits(pixel), index), m_seed);
         // Stream (increment) and start state both from the hash: distinct samples get

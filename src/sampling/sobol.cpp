@@ -38,7 +38,7 @@ class SobolSampler final : public Sampler {
 public:
     explicit SobolSampler(uint64_t seed) { set_seed(seed); }
 
-    void start_pixel_sample(int px, int py, uint32_t index) override {
+    void start(int px, int py, uint32_t index) override {
         m_pixel_hash = hash_combine(mix_bits(uint64_t(uint32_t(px)) | (uint64_t(uint32_t(py)) << 32)), m_seed);
         m_index = index;
         m_dimension = 0;

@@ -23,6 +23,10 @@
 //   the other materials (issue 22: "BSDF sample and eval per material"): rough dielectric,
 //   blinnphong, gltf_pbr, leadr, lean, clean, toksvig, vmf (two lobes), normalmap, each at one
 //   typical setting, listed in a second table
+// "micro/<name>": eval_pdf + sample (a path vertex) on MICROGEOMETRY, as on a shell-mapped LoD
+// level: the shading frame tilted by 14 degrees against the macro frame, which the context
+// carries (n_macro, dpdu_macro), so `prefiltered` rotates its directions into the model's frame
+// and back; for the lobes-form materials and their bases (which ignore the macro frame).
 // uv: "--uv=random" (default) puts every input on a random texel of the map, so the model's
 // per-texel data (≈ 1.5 KB of node weights and normals) and the S table (0.6 MB) are mostly out
 // of the nearest caches, as for incoherent secondary rays; "--uv=one" keeps all on one texel
@@ -136,12 +140,19 @@ void build_small_model(const Base &b, const std::string &dir, bool lobes) {
     prefilter::build_model(o).save(dir);
 }
 
-/// One shading sample per iteration (see the header); with_pdf adds the pdf of the sampled direction.
-void shading_sample(benchmark::State &state, const Material *m, bool with_pdf) {
+/// One shading sample per iteration (see the header); with_pdf adds the pdf of the sampled
+/// direction; micro: on microgeometry (the header's "micro/").
+void shading_sample(benchmark::State &state, const Material *m, bool with_pdf, bool micro) {
     const std::vector<Input> &in = inputs();
     ShadingContext ctx;  // flat: identity frame, right-handed uv (dp/du = s, dp/dv = t)
     ctx.dpdu = Vec3(1.f, 0.f, 0.f);
     ctx.dpdv = Vec3(0.f, 1.f, 0.f);
+    if (micro) {
+        ctx.frame = Frame::from_normal_tangent(normalize(Vec3(0.2f, -0.15f, 1.f)), Vec3(1.f, 0.f, 0.f));
+        ctx.n_macro = Vec3(0.f, 0.f, 1.f);
+        ctx.dpdu_macro = Vec3(1.f, 0.f, 0.f);
+        ctx.dpdv_macro = Vec3(0.f, 1.f, 0.f);
+    }
     size_t i = 0;
     for (auto _ : state) {
         const Input &x = in[i];
@@ -163,9 +174,12 @@ void shading_sample(benchmark::State &state, const Material *m, bool with_pdf) {
 void print_summary(const std::map<std::string, double> &ns) {
     std::printf("\nMedian CPU ns per shading sample (ratio = prefiltered / base, same run; uv: %s)\n",
                 g_one_texel ? "one texel" : "a random texel per sample");
-    for (const char *kind : {"shade", "vertex"}) {
+    for (const char *kind : {"shade", "vertex", "micro"}) {
+        const std::string k = kind;
         std::printf("%s: %s\n", kind,
-                    std::string(kind) == "shade" ? "eval_pdf + sample + pdf(sampled)" : "eval_pdf + sample");
+                    k == "shade"    ? "eval_pdf + sample + pdf(sampled)"
+                    : k == "vertex" ? "eval_pdf + sample"
+                                    : "eval_pdf + sample on microgeometry (tilted shading frame)");
         std::printf("  %-10s %10s %14s %8s %14s %8s %14s %8s", "base", "base ns", "lobes ns", "ratio", "quadrature ns",
                     "ratio", "stochastic ns", "ratio");
         for (int nodes : kSetNodes) std::printf(" %13s%-2d %8s", "stratified", nodes, "ratio");
@@ -195,11 +209,14 @@ void print_summary(const std::map<std::string, double> &ns) {
     }
 }
 
-/// Registers shade/NAME and vertex/NAME for material m.
-void register_material(const std::string &name, const Material *m) {
+/// Registers shade/NAME and vertex/NAME for material m, and micro/NAME with `micro`.
+void register_material(const std::string &name, const Material *m, bool micro = false) {
     for (bool with_pdf : {true, false})
         benchmark::RegisterBenchmark(fmt::format("{}/{}", with_pdf ? "shade" : "vertex", name).c_str(), shading_sample, m,
-                                     with_pdf)
+                                     with_pdf, false)
+            ->Unit(benchmark::kNanosecond);
+    if (micro)
+        benchmark::RegisterBenchmark(fmt::format("micro/{}", name).c_str(), shading_sample, m, false, true)
             ->Unit(benchmark::kNanosecond);
 }
 
@@ -236,7 +253,7 @@ int main(int argc, char **argv) {
             }
             for (auto &[name, m] : mats) {
                 keep.push_back(m);
-                register_material(name, m.get());
+                register_material(name, m.get(), b.lobes && (name == b.name || name.find(":lobes") != std::string::npos));
             }
         }
         for (const Base &b : kOthers) {
