@@ -132,6 +132,16 @@ inline __m128 lambda4(bool ggx, __m128 alpha, __m128 a2, __m128 z) {
     return _mm_and_ps(_mm_cmplt_ps(a, _mm_set1_ps(1.6f)), _mm_div_ps(num, den));
 }
 
+/// The visible form's weights of four lobes at cosines lo = μ_j·ωo: c_j C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j)
+/// (view_weight), read lane by lane from the table; lanes that do not face ωo are masked later.
+inline __m128 visible_weights(const float *c, const float *krow, const float *inv_cz, __m128 lo) {
+    alignas(16) float t[4], w[4];
+    _mm_store_ps(t, lo);
+    for (int q = 0; q < 4; ++q)
+        w[q] = c[q] > 0.f && t[q] > 0.f ? c[q] * VmfTables::lookup(vmf_tables().C, t[q], krow[q]) * inv_cz[q] : 0.f;
+    return _mm_load_ps(w);
+}
+
 inline float hsum(__m128 v) {
     v = _mm_add_ps(v, _mm_movehl_ps(v, v));
     v = _mm_add_ss(v, _mm_shuffle_ps(v, v, 1));
@@ -263,8 +273,9 @@ LobeBase make_lobe_base(std::shared_ptr<const Material> material, const nlohmann
 // ---------------------------------------------------------------------------------------
 
 SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo,
-                       bool visible_lambert)
-    : m_base(std::move(base)), m_visible(visible_lambert && m_base.kind == LobeBase::Kind::Lambertian), m_w(width),
+                       bool visible_lambert, bool visible_microfacet)
+    : m_base(std::move(base)),
+      m_visible(m_base.kind == LobeBase::Kind::Lambertian ? visible_lambert : visible_microfacet), m_w(width),
       m_h(height) {
     if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
         throw MesoError(fmt::format("lobes f'_low: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
@@ -289,7 +300,7 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             l.hz = VmfTables::lookup(vmf_tables().H, l.mu.z, l.krow);
             l.cz = VmfTables::lookup(vmf_tables().C, l.mu.z, l.krow);
             // The visible form weights the lobe by its projected area towards ωo, A a_j C(μ_j·ωo, κ_j):
-            // c_j = A a_j C(μ_j,z, κ_j) is that at the pole (lambert_view_weight: c_j C(μ_j·ωo) / C(μ_j,z)).
+            // c_j = A a_j C(μ_j,z, κ_j) is that at the pole (view_weight: c_j C(μ_j·ωo) / C(μ_j,z)).
             l.c = float(P.amplitude * v.weight * (m_visible ? l.cz : l.hz));
             if (!(l.c > 0.f) || !(l.hz > 0.f) || !(l.cz > 0.f)) continue;
             const double a = widened_alpha(m_base.alpha, kappa);
@@ -319,12 +330,13 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             const int q = int((j - m_first[k]) % 4);
             B.mx[q] = l.mu.x, B.my[q] = l.mu.y, B.mz[q] = l.mu.z, B.c[q] = l.c;
             B.alpha[q] = l.alpha, B.a2[q] = l.alpha * l.alpha, B.inv_a2[q] = l.inv_a2, B.d_norm[q] = l.d_norm;
+            B.krow[q] = l.krow, B.inv_cz[q] = 1.f / l.cz;
         }
     }
     m_first_block.push_back(uint32_t(m_blocks.size()));
 }
 
-float SvLobeBrdf::lambert_view_weight(const Lobe &l, const Vec3 &wo) const {
+float SvLobeBrdf::view_weight(const Lobe &l, const Vec3 &wo) const {
     const VmfTables &tab = vmf_tables();
     const float t = dot(l.mu, wo);
     if (m_visible) return l.c * VmfTables::lookup(tab.C, t, l.krow) / l.cz;
@@ -362,12 +374,13 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
     __m128 sum = zero, psum = zero, ptot = zero;
     for (uint32_t b = m_first_block[patch]; b < m_first_block[patch + 1]; ++b) {
         const LobeBlock &B = m_blocks[b];
-        const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz), c = _mm_load_ps(B.c);
+        const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz);
         auto dot4 = [&](__m128 x, __m128 y, __m128 z) {
             return _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, x), _mm_mul_ps(my, y)), _mm_mul_ps(mz, z));
         };
         const __m128 lo = dot4(ox, oy, oz), li = dot4(ix, iy, iz), ch = dot4(hx, hy, hz);
         const __m128 faces = _mm_cmpgt_ps(lo, zero);
+        const __m128 c = m_visible ? visible_weights(B.c, B.krow, B.inv_cz, lo) : _mm_load_ps(B.c);
         ptot = _mm_add_ps(ptot, _mm_and_ps(faces, c));
         const __m128 c2 = _mm_mul_ps(ch, ch);
         const __m128 ok = _mm_and_ps(_mm_and_ps(faces, _mm_cmpgt_ps(li, zero)),
@@ -393,6 +406,9 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
     const float s = hsum(sum), ps = hsum(psum), pt = hsum(ptot);
     if (pdf) *pdf = pt > 0.f && std::isfinite(ps) ? ps / (pt * 4.f * dwh) : 0.f;
     if (!(s > 0.f) || !std::isfinite(s)) return Spectrum(0.f);
+    // The visible form: the facing lobes' shares of what is seen from ωo, times the NDF's total
+    // projected area (Σ_j c_j, 1 for a normalised NDF), as in eval_pdf_lambert.
+    if (m_visible) return m_base.fresnel_at(dot(wi, h)) * (s * m_visible_scale[patch] / pt);
     return m_base.fresnel_at(dot(wi, h)) * s;
 }
 
@@ -402,7 +418,7 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, c
     const auto [b, e] = lobes(patch);
     float sum = 0.f, psum = 0.f, ptot = 0.f;
     for (const Lobe *l = b; l != e; ++l) {
-        const float v = lambert_view_weight(*l, wo);
+        const float v = view_weight(*l, wo);
         if (!(v > 0.f)) continue;
         const float ti = dot(l->mu, wi);
         ptot += v;
@@ -443,7 +459,7 @@ const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const V
     float total = 0.f;
     for (int j = 0; j < n; ++j) {
         const float t = dot(b[j].mu, wo);
-        w[j] = mf ? (t > 0.f ? b[j].c : 0.f) : lambert_view_weight(b[j], wo);
+        w[j] = !mf ? view_weight(b[j], wo) : !(t > 0.f) ? 0.f : m_visible ? view_weight(b[j], wo) : b[j].c;
         total += w[j];
     }
     if (!(total > 0.f)) return nullptr;
