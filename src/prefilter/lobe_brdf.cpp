@@ -133,13 +133,28 @@ inline __m128 lambda4(bool ggx, __m128 alpha, __m128 a2, __m128 z) {
 }
 
 /// The visible form's weights of four lobes at cosines lo = μ_j·ωo: c_j C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j)
-/// (view_weight), read lane by lane from the table; lanes that do not face ωo are masked later.
-inline __m128 visible_weights(const float *c, const float *krow, const float *inv_cz, __m128 lo) {
-    alignas(16) float t[4], w[4];
-    _mm_store_ps(t, lo);
-    for (int q = 0; q < 4; ++q)
-        w[q] = c[q] > 0.f && t[q] > 0.f ? c[q] * VmfTables::lookup(vmf_tables().C, t[q], krow[q]) * inv_cz[q] : 0.f;
-    return _mm_load_ps(w);
+/// (view_weight: the same bilinear lookup of the C table, four lanes at once; each lane's row and
+/// its fraction are the lobe's, crow = row · kT and cfy); lanes with c = 0 or lo <= 0 give 0.
+inline __m128 visible_weights(const float *c, const int *crow, const float *cfy, const float *inv_cz, __m128 lo) {
+    constexpr int kT = VmfTables::kT;
+    const __m128 x = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_add_ps(lo, _mm_set1_ps(1.f)), _mm_set1_ps(0.5f * (kT - 1))),
+                                           _mm_setzero_ps()),
+                                _mm_set1_ps(float(kT - 1)));
+    const __m128i i = _mm_min_epi32(_mm_cvttps_epi32(x), _mm_set1_epi32(kT - 2));
+    const __m128 fx = _mm_sub_ps(x, _mm_cvtepi32_ps(i)), fy = _mm_loadu_ps(cfy);
+    alignas(16) int k[4];
+    _mm_store_si128(reinterpret_cast<__m128i *>(k), _mm_add_epi32(i, _mm_loadu_si128(reinterpret_cast<const __m128i *>(crow))));
+    const float *C = vmf_tables().C.data();
+    const __m128 a0 = _mm_setr_ps(C[k[0]], C[k[1]], C[k[2]], C[k[3]]);
+    const __m128 a1 = _mm_setr_ps(C[k[0] + 1], C[k[1] + 1], C[k[2] + 1], C[k[3] + 1]);
+    const __m128 b0 = _mm_setr_ps(C[k[0] + kT], C[k[1] + kT], C[k[2] + kT], C[k[3] + kT]);
+    const __m128 b1 = _mm_setr_ps(C[k[0] + kT + 1], C[k[1] + kT + 1], C[k[2] + kT + 1], C[k[3] + kT + 1]);
+    const __m128 one = _mm_set1_ps(1.f), gx = _mm_sub_ps(one, fx);
+    const __m128 v = _mm_add_ps(_mm_mul_ps(_mm_sub_ps(one, fy), _mm_add_ps(_mm_mul_ps(gx, a0), _mm_mul_ps(fx, a1))),
+                                _mm_mul_ps(fy, _mm_add_ps(_mm_mul_ps(gx, b0), _mm_mul_ps(fx, b1))));
+    const __m128 cv = _mm_load_ps(c);
+    const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(cv, _mm_setzero_ps()), _mm_cmpgt_ps(lo, _mm_setzero_ps()));
+    return _mm_and_ps(ok, _mm_mul_ps(_mm_mul_ps(cv, v), _mm_load_ps(inv_cz)));
 }
 
 inline float hsum(__m128 v) {
@@ -330,7 +345,8 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             const int q = int((j - m_first[k]) % 4);
             B.mx[q] = l.mu.x, B.my[q] = l.mu.y, B.mz[q] = l.mu.z, B.c[q] = l.c;
             B.alpha[q] = l.alpha, B.a2[q] = l.alpha * l.alpha, B.inv_a2[q] = l.inv_a2, B.d_norm[q] = l.d_norm;
-            B.krow[q] = l.krow, B.inv_cz[q] = 1.f / l.cz;
+            const int r = std::min(int(l.krow), VmfTables::kK - 2);
+            B.crow[q] = r * VmfTables::kT, B.cfy[q] = l.krow - float(r), B.inv_cz[q] = 1.f / l.cz;
         }
     }
     m_first_block.push_back(uint32_t(m_blocks.size()));
@@ -380,7 +396,7 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
         };
         const __m128 lo = dot4(ox, oy, oz), li = dot4(ix, iy, iz), ch = dot4(hx, hy, hz);
         const __m128 faces = _mm_cmpgt_ps(lo, zero);
-        const __m128 c = m_visible ? visible_weights(B.c, B.krow, B.inv_cz, lo) : _mm_load_ps(B.c);
+        const __m128 c = m_visible ? visible_weights(B.c, B.crow, B.cfy, B.inv_cz, lo) : _mm_load_ps(B.c);
         ptot = _mm_add_ps(ptot, _mm_and_ps(faces, c));
         const __m128 c2 = _mm_mul_ps(ch, ch);
         const __m128 ok = _mm_and_ps(_mm_and_ps(faces, _mm_cmpgt_ps(li, zero)),

@@ -211,7 +211,8 @@ private:
     /// c = 0 and μ = 0 (they face nothing).
     struct alignas(16) LobeBlock {
         float mx[4] = {}, my[4] = {}, mz[4] = {}, c[4] = {}, alpha[4] = {}, a2[4] = {}, inv_a2[4] = {},
-              d_norm[4] = {}, krow[4] = {}, inv_cz[4] = {};
+              d_norm[4] = {}, cfy[4] = {}, inv_cz[4] = {};
+        int crow[4] = {};  ///< the C table's row of the lobe (visible form), times its width
     };
 
     LobeBase m_base;
