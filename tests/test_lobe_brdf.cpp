@@ -219,12 +219,14 @@ TEST(LobeBrdf, ClosedFormAgainstEq5Quadrature) {
             const double ratio = sum_f / sum_q;
             std::printf("  %-9s kappa %8.1f: %.3f\n", nlohmann::json::parse(b)["type"].get<std::string>().c_str(), kappa,
                         ratio);
-            // Measured: conductor 0.96-1.04 for κ >= 3, 1.10-1.42 below (the widening stops at α' = 1);
+            // Measured: conductor 1.11-1.12 for κ >= 30, 0.70-0.80 below (eq. 5 weighs a lobe by its
+            // area A a_j whatever ωo, the lobes by their share of the projected area seen from ωo:
+            // lobe_brdf.h, microfacet_view; with the area weights it was 0.96-1.04 for κ >= 3);
             // diffuse 0.96-1.03 for κ >= 30 (eq. 5 has the step where a facet turns away, the lobes
             // their projected area towards ωo), 0.74 at κ = 3 down to 0.38 at κ = 0 (eq. 5 counts
             // every normal of the lobe facing ωo at full weight, the lobes weigh them by m·ωo).
             EXPECT_GT(ratio, kappa >= 30.0 ? 0.9 : b == kDiffuse ? 0.3 : 0.6) << b << " kappa " << kappa;
-            EXPECT_LT(ratio, kappa >= 30.0 ? 1.1 : 1.6) << b << " kappa " << kappa;
+            EXPECT_LT(ratio, kappa >= 30.0 ? (b == kDiffuse ? 1.1 : 1.2) : 1.6) << b << " kappa " << kappa;
         }
 }
 

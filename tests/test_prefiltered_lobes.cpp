@@ -19,6 +19,7 @@ const std::string &lobes_model_dir() {
         m.quadrature.lobes = true;
         m.manifest["parameters"]["flow"] = "lobes";
         m.manifest["parameters"]["lambert_view"] = "visible";  // as `meso prefilter` writes it now
+        m.manifest["parameters"]["microfacet_view"] = "visible";
         const std::string d = (fs::path(meso::test::scratch_dir("meso_prefiltered_test")) / "model_lobes").string();
         m.save(d);
         return d;
@@ -38,6 +39,9 @@ TEST(PrefilteredLobes, FormIsRecordedAndLoaded) {
     // parameters.lambert_view: "visible" now; absent (models made before) the min(H, H) view weight.
     EXPECT_FALSE(PrefilteredModel::load(lobes_model_dir()).quadrature.cap_mass_lambert);
     EXPECT_TRUE(PrefilteredModel::load(tiny_model().dir).quadrature.cap_mass_lambert);
+    // parameters.microfacet_view: "visible" now; absent (models made before) the lobes' area weights.
+    EXPECT_FALSE(PrefilteredModel::load(lobes_model_dir()).quadrature.area_microfacet);
+    EXPECT_TRUE(PrefilteredModel::load(tiny_model().dir).quadrature.area_microfacet);
 }
 
 TEST(PrefilteredLobes, EvalIsTimesSTimesTheClosedForm) {

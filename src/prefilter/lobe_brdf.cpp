@@ -132,6 +132,31 @@ inline __m128 lambda4(bool ggx, __m128 alpha, __m128 a2, __m128 z) {
     return _mm_and_ps(_mm_cmplt_ps(a, _mm_set1_ps(1.6f)), _mm_div_ps(num, den));
 }
 
+/// The visible form's weights of four lobes at cosines lo = μ_j·ωo: c_j C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j)
+/// (view_weight: the same bilinear lookup of the C table, four lanes at once; each lane's row and
+/// its fraction are the lobe's, crow = row · kT and cfy); lanes with c = 0 or lo <= 0 give 0.
+inline __m128 visible_weights(const float *c, const int *crow, const float *cfy, const float *inv_cz, __m128 lo) {
+    constexpr int kT = VmfTables::kT;
+    const __m128 x = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_add_ps(lo, _mm_set1_ps(1.f)), _mm_set1_ps(0.5f * (kT - 1))),
+                                           _mm_setzero_ps()),
+                                _mm_set1_ps(float(kT - 1)));
+    const __m128i i = _mm_min_epi32(_mm_cvttps_epi32(x), _mm_set1_epi32(kT - 2));
+    const __m128 fx = _mm_sub_ps(x, _mm_cvtepi32_ps(i)), fy = _mm_loadu_ps(cfy);
+    alignas(16) int k[4];
+    _mm_store_si128(reinterpret_cast<__m128i *>(k), _mm_add_epi32(i, _mm_loadu_si128(reinterpret_cast<const __m128i *>(crow))));
+    const float *C = vmf_tables().C.data();
+    const __m128 a0 = _mm_setr_ps(C[k[0]], C[k[1]], C[k[2]], C[k[3]]);
+    const __m128 a1 = _mm_setr_ps(C[k[0] + 1], C[k[1] + 1], C[k[2] + 1], C[k[3] + 1]);
+    const __m128 b0 = _mm_setr_ps(C[k[0] + kT], C[k[1] + kT], C[k[2] + kT], C[k[3] + kT]);
+    const __m128 b1 = _mm_setr_ps(C[k[0] + kT + 1], C[k[1] + kT + 1], C[k[2] + kT + 1], C[k[3] + kT + 1]);
+    const __m128 one = _mm_set1_ps(1.f), gx = _mm_sub_ps(one, fx);
+    const __m128 v = _mm_add_ps(_mm_mul_ps(_mm_sub_ps(one, fy), _mm_add_ps(_mm_mul_ps(gx, a0), _mm_mul_ps(fx, a1))),
+                                _mm_mul_ps(fy, _mm_add_ps(_mm_mul_ps(gx, b0), _mm_mul_ps(fx, b1))));
+    const __m128 cv = _mm_load_ps(c);
+    const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(cv, _mm_setzero_ps()), _mm_cmpgt_ps(lo, _mm_setzero_ps()));
+    return _mm_and_ps(ok, _mm_mul_ps(_mm_mul_ps(cv, v), _mm_load_ps(inv_cz)));
+}
+
 inline float hsum(__m128 v) {
     v = _mm_add_ps(v, _mm_movehl_ps(v, v));
     v = _mm_add_ss(v, _mm_shuffle_ps(v, v, 1));
@@ -263,8 +288,9 @@ LobeBase make_lobe_base(std::shared_ptr<const Material> material, const nlohmann
 // ---------------------------------------------------------------------------------------
 
 SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo,
-                       bool visible_lambert)
-    : m_base(std::move(base)), m_visible(visible_lambert && m_base.kind == LobeBase::Kind::Lambertian), m_w(width),
+                       bool visible_lambert, bool visible_microfacet)
+    : m_base(std::move(base)),
+      m_visible(m_base.kind == LobeBase::Kind::Lambertian ? visible_lambert : visible_microfacet), m_w(width),
       m_h(height) {
     if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
         throw MesoError(fmt::format("lobes f'_low: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
@@ -289,7 +315,7 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             l.hz = VmfTables::lookup(vmf_tables().H, l.mu.z, l.krow);
             l.cz = VmfTables::lookup(vmf_tables().C, l.mu.z, l.krow);
             // The visible form weights the lobe by its projected area towards ωo, A a_j C(μ_j·ωo, κ_j):
-            // c_j = A a_j C(μ_j,z, κ_j) is that at the pole (lambert_view_weight: c_j C(μ_j·ωo) / C(μ_j,z)).
+            // c_j = A a_j C(μ_j,z, κ_j) is that at the pole (view_weight: c_j C(μ_j·ωo) / C(μ_j,z)).
             l.c = float(P.amplitude * v.weight * (m_visible ? l.cz : l.hz));
             if (!(l.c > 0.f) || !(l.hz > 0.f) || !(l.cz > 0.f)) continue;
             const double a = widened_alpha(m_base.alpha, kappa);
@@ -319,12 +345,14 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             const int q = int((j - m_first[k]) % 4);
             B.mx[q] = l.mu.x, B.my[q] = l.mu.y, B.mz[q] = l.mu.z, B.c[q] = l.c;
             B.alpha[q] = l.alpha, B.a2[q] = l.alpha * l.alpha, B.inv_a2[q] = l.inv_a2, B.d_norm[q] = l.d_norm;
+            const int r = std::min(int(l.krow), VmfTables::kK - 2);
+            B.crow[q] = r * VmfTables::kT, B.cfy[q] = l.krow - float(r), B.inv_cz[q] = 1.f / l.cz;
         }
     }
     m_first_block.push_back(uint32_t(m_blocks.size()));
 }
 
-float SvLobeBrdf::lambert_view_weight(const Lobe &l, const Vec3 &wo) const {
+float SvLobeBrdf::view_weight(const Lobe &l, const Vec3 &wo) const {
     const VmfTables &tab = vmf_tables();
     const float t = dot(l.mu, wo);
     if (m_visible) return l.c * VmfTables::lookup(tab.C, t, l.krow) / l.cz;
@@ -369,12 +397,13 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
     __m128 sum = zero, psum = zero, ptot = zero;
     for (uint32_t b = m_first_block[patch]; b < m_first_block[patch + 1]; ++b) {
         const LobeBlock &B = m_blocks[b];
-        const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz), c = _mm_load_ps(B.c);
+        const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz);
         auto dot4 = [&](__m128 x, __m128 y, __m128 z) {
             return _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, x), _mm_mul_ps(my, y)), _mm_mul_ps(mz, z));
         };
         const __m128 lo = dot4(ox, oy, oz), li = dot4(ix, iy, iz), ch = dot4(hx, hy, hz);
         const __m128 faces = _mm_cmpgt_ps(lo, zero);
+        const __m128 c = m_visible ? visible_weights(B.c, B.crow, B.cfy, B.inv_cz, lo) : _mm_load_ps(B.c);
         ptot = _mm_add_ps(ptot, _mm_and_ps(faces, c));
         const __m128 c2 = _mm_mul_ps(ch, ch);
         const __m128 ok = _mm_and_ps(_mm_and_ps(faces, _mm_cmpgt_ps(li, zero)),
@@ -400,6 +429,9 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
     const float s = hsum(sum), ps = hsum(psum), pt = hsum(ptot);
     if (pdf) *pdf = pt > 0.f && std::isfinite(ps) ? ps / (pt * 4.f * dwh) : 0.f;
     if (!(s > 0.f) || !std::isfinite(s)) return Spectrum(0.f);
+    // The visible form: the facing lobes' shares of what is seen from ωo, times the NDF's total
+    // projected area (Σ_j c_j, 1 for a normalised NDF), as in eval_pdf_lambert.
+    if (m_visible) return m_base.fresnel_at(dot(wi, h)) * (s * m_visible_scale[patch] / pt);
     return m_base.fresnel_at(dot(wi, h)) * s;
 }
 
@@ -409,7 +441,7 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, c
     const auto [b, e] = lobes(patch);
     float sum = 0.f, psum = 0.f, ptot = 0.f;
     for (const Lobe *l = b; l != e; ++l) {
-        const float v = lambert_view_weight(*l, wo);
+        const float v = view_weight(*l, wo);
         if (!(v > 0.f)) continue;
         const float ti = dot(l->mu, wi);
         ptot += v;
@@ -448,7 +480,7 @@ const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const V
     const int n = int(std::min<ptrdiff_t>(e - b, 64));
     float total = 0.f;
     for (int j = 0; j < n; ++j) {
-        w[j] = lambert_view_weight(b[j], wo);
+        w[j] = view_weight(b[j], wo);
         total += w[j];
     }
     if (!(total > 0.f)) return nullptr;
@@ -465,14 +497,16 @@ const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const V
 bool SvLobeBrdf::choose_block(size_t patch, const Vec3 &wo, float u_lobe, uint32_t &bo, int &qo) const {
     const uint32_t first = m_first_block[patch], last = m_first_block[patch + 1];
     const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
-    // c_j [μ_j·ωo > 0] of block b's lanes (μ·ωo as dot(): (x + y) + z; padding lanes have c = 0).
+    // Block b's lanes' weights towards ωo, those eval_pdf_microfacet's pdf divides by: c_j [μ_j·ωo > 0],
+    // or in the visible form c_j C(μ_j·ωo) / C(μ_j,z) (visible_weights; padding lanes have c = 0).
     auto weights = [&](uint32_t b, float *w) {
         const LobeBlock &B = m_blocks[b];
         const __m128 t = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_load_ps(B.mx), ox), _mm_mul_ps(_mm_load_ps(B.my), oy)),
                                     _mm_mul_ps(_mm_load_ps(B.mz), oz));
-        _mm_storeu_ps(w, _mm_and_ps(_mm_cmpgt_ps(t, _mm_setzero_ps()), _mm_load_ps(B.c)));
+        _mm_storeu_ps(w, m_visible ? visible_weights(B.c, B.crow, B.cfy, B.inv_cz, t)
+                                   : _mm_and_ps(_mm_cmpgt_ps(t, _mm_setzero_ps()), _mm_load_ps(B.c)));
     };
-    // choose's arithmetic in choose's order (lobe by lobe; a padding lane adds +0): the same lobe.
+    // Lobe by lobe in the patch's order (a padding lane adds +0), as choose does for Lambertian lobes.
     float total = 0.f;
     for (uint32_t b = first; b < last; ++b) {
         float w[4];

@@ -11,9 +11,12 @@
 // The form. Each vMF lobe j of the patch NDF (mean μ_j, concentration κ_j, weight a_j, amplitude
 // A; patch_ndf.h) convolved with the base gives ONE base-like lobe in the frame of μ_j:
 //
-//   eval(ωo, ωi) = Σ_j c_j g_j(ωo, ωi),      c_j = A a_j H(μ_j,z, κ_j)
+//   eval(ωo, ωi) = Σ_j w_j(ωo) g_j(ωo, ωi)
 //
-// H(t, κ) = ∫ γ(ω; μ, κ) [ω·n > 0] dω with t = μ·n (the lobe's mass above a plane; here the macro
+// with w_j(ωo) lobe j's share of the projected area seen from ωo (the visible form, below). Models
+// made before it (no parameters.lambert_view / microfacet_view in the manifest) keep the weights
+// they were fitted with: c_j = A a_j H(μ_j,z, κ_j) for microfacet lobes, with
+// H(t, κ) = ∫ γ(ω; μ, κ) [ω·n > 0] dω for t = μ·n (the lobe's mass above a plane; here the macro
 // horizon, which eq. 4 cuts off), so that Σ_j c_j is the limit of eq. 5's node weights.
 //
 // * Microfacet base (rough conductor, Beckmann or GGX, isotropic): the base's D and Smith G in
@@ -34,7 +37,18 @@
 //   specular_reflectance) is evaluated ONCE per (ωo, ωi), from a 64-entry table probed from the
 //   base material itself at construction. G is the height-correlated Smith 1/(1 + Λ(ωo) + Λ(ωi))
 //   of microfacet.h, with Walter et al. 2007's rational Λ for Beckmann (no erf) and the exact Λ
-//   for GGX (one sqrt).
+//   for GGX (one sqrt). The lobes are summed with the Lambertian form's view weights w_j(ωo) below
+//   (the facing lobes' shares of the projected area seen from ωo, times Σ_k c_k = 1):
+//       eval = Σ_j w_j(ωo) g_j,   w_j over the lobes with μ_j·ωo > 0 (g_j needs them)
+//   Why: the radiance of a patch is its facets' radiance averaged over their projected area
+//   towards the viewer; g_j is the radiance of lobe j's facets, so lobe j's weight is its share of
+//   that area (Heitz 2014's D_ωo). The form before (models without parameters.microfacet_view,
+//   which keep it) weighted lobe j by its area A a_j H(μ_j,z, κ_j) whatever ωo: 1 / cos(tilt) for
+//   a tilted flat patch. At levels whose h_low keeps the tilt (the held-out copper's x4, x8: its
+//   bumps are 4-5 coarse cells wide), h_low's facet adds its own projected-area weight, so every
+//   patch came out 1 / cos(its tilt) too bright: a factor that changes from patch to patch at one
+//   (ωi, ωo), which no angular S can remove (the pixel-scale bias of issue 21 on that scene; tests/
+//   test_prefiltered_bias.cpp: 1.054 and 1.41 on facets tilted 18° and 45°, 1.00 now).
 // * Lambertian base (`diffuse`, any reflectance texture, read through the base's own eval):
 //       eval = ρ̄/π · Σ_j w_j(ωo) C(μ_j·ωi, κ_j),   w_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) · Σ_k c_k,
 //       c_j = A a_j C(μ_j,z, κ_j),   v_j(ωo) = C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j)
@@ -65,8 +79,8 @@
 //   m·ωo (0.96-1.03 of eq. 5 for κ >= 30, 0.38 at κ = 0, where eq. 5 counts every normal facing
 //   ωo at full weight: T and S absorb it). C and H are tabulated (vmf_clamped_cosine, vmf_cap_mass).
 //
-// Sampling: lobe j with probability P_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) (v = [μ_j·ωo > 0] for
-// microfacet lobes, v_j(ωo) above for Lambertian ones), then
+// Sampling: lobe j with probability P_j(ωo) = c_j v_j(ωo) / Σ_k c_k v_k(ωo) (v_j(ωo) above, and
+// [μ_j·ωo > 0] for microfacet lobes: times v_j in the visible form, alone in the area form), then
 //   microfacet: the FULL NDF D_α'(m; μ_j)(m·μ_j) in the frame of μ_j (closed form, no inverted
 //     CDF), ωi = reflect(ωo, m); density D (m·μ_j) / (4 ωo·m) where μ_j·ωi > 0;
 //   Lambertian: exactly the lobe's own C: t = μ_j·ωi drawn with density C(t, κ_j) / ∫C from the
@@ -150,8 +164,10 @@ public:
     /// before the patch mean; QuadratureOptions::point_albedo).
     /// visible_lambert false: a Lambertian lobe's view weight min(H(μ_j,z), H(μ_j·ωo)) (models made
     /// before the visible form; QuadratureOptions::cap_mass_lambert).
+    /// visible_microfacet false: a microfacet lobe's weight c_j = A a_j H(μ_j,z, κ_j) whatever ωo
+    /// (models made before its visible form; QuadratureOptions::area_microfacet).
     SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int width, int height, bool patch_mean_albedo = true,
-               bool visible_lambert = true);
+               bool visible_lambert = true, bool visible_microfacet = true);
 
     Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
         return eval_pdf(ctx, wo, wi, nullptr);
@@ -192,12 +208,13 @@ private:
     size_t patch_index(Vec2 uv) const;
     Spectrum eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
                               float *pdf) const;
-    /// A Lambertian lobe's weight towards ωo, v_j(ωo) of the header (P_j ∝ v_j).
-    float lambert_view_weight(const Lobe &l, const Vec3 &wo) const;
+    /// A lobe's weight towards ωo (P_j ∝ it): c_j v_j(ωo) of the header (Lambertian lobes, and
+    /// facing microfacet lobes in the visible form).
+    float view_weight(const Lobe &l, const Vec3 &wo) const;
     /// The Lambertian lobe chosen by u_lobe for wo (P_j of the header); null when none faces wo.
     const Lobe *choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const;
-    /// choose for a microfacet base, from the patch's blocks (the data eval_pdf_microfacet reads,
-    /// so a vertex touches one lobe array, not two): the same lobe as choose, as block b, lane q.
+    /// The microfacet lobe chosen by u_lobe for wo (P_j of the header), from the patch's blocks
+    /// (the data and weights eval_pdf_microfacet reads, so a vertex touches one lobe array): block b, lane q.
     bool choose_block(size_t patch, const Vec3 &wo, float u_lobe, uint32_t &b, int &q) const;
     /// The microfacet draw about lobe (μ, α') (see the header): false outside μ's hemisphere.
     bool sample_microfacet(const Vec3 &mu, float alpha, const Vec3 &wo, Vec2 u, Vec3 &wi) const;
@@ -206,7 +223,8 @@ private:
     /// c = 0 and μ = 0 (they face nothing).
     struct alignas(16) LobeBlock {
         float mx[4] = {}, my[4] = {}, mz[4] = {}, c[4] = {}, alpha[4] = {}, a2[4] = {}, inv_a2[4] = {},
-              d_norm[4] = {};
+              d_norm[4] = {}, cfy[4] = {}, inv_cz[4] = {};
+        int crow[4] = {};  ///< the C table's row of the lobe (visible form), times its width
     };
 
     LobeBase m_base;
@@ -217,7 +235,7 @@ private:
     /// Lambertian base: patch k's ρ/π, the base's averaged over the patch (patch_mean_lambert);
     /// empty otherwise, and with point albedo (then lambert() reads the base at the point).
     std::vector<Spectrum> m_albedo;
-    bool m_visible = false;              ///< Lambertian lobes weighted by their projected area towards ωo
+    bool m_visible = false;              ///< lobes weighted by their projected area towards ωo
     std::vector<float> m_visible_scale;  ///< visible form: patch k's Σ_j c_j
     int m_w = 0, m_h = 0;
 };

@@ -220,6 +220,12 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
         throw MesoError(fmt::format("{}: parameters.lambert_view: expected \"visible\" or \"cap_mass\", got \"{}\"",
                                     where, view));
     m.quadrature.cap_mass_lambert = view == "cap_mass";
+    // parameters.microfacet_view (absent in models made before the visible form of microfacet lobes).
+    const std::string mview = par.value("microfacet_view", std::string("area"));
+    if (mview != "area" && mview != "visible")
+        throw MesoError(fmt::format("{}: parameters.microfacet_view: expected \"visible\" or \"area\", got \"{}\"",
+                                    where, mview));
+    m.quadrature.area_microfacet = mview == "area";
     if (m.map_width < 1 || m.map_height < 1 || !(m.tile_size > 0) || m.lobes < 1 || m.lobes > 64)
         throw MesoError(fmt::format("{}: invalid map size, tile_size or lobes", where));
     for (const auto &lj : need(j, "levels", where)) {
@@ -333,7 +339,7 @@ SvMultiLobe::SvMultiLobe(std::shared_ptr<const Material> base, const std::vector
         throw MesoError(fmt::format("multi-lobe SVBRDF: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
     if (q.lobes) {
         m_lobe_form = std::make_unique<SvLobeBrdf>(make_lobe_base(m_base, base_json, base_where), ndf, width, height,
-                                                   !q.point_albedo, !q.cap_mass_lambert);
+                                                   !q.point_albedo, !q.cap_mass_lambert, !q.area_microfacet);
         return;
     }
     m_patches.resize(ndf.size());

@@ -152,6 +152,10 @@ struct QuadratureOptions {
     /// instead of its projected area (lobe_brdf.h) — how models made before the visible form were
     /// fitted (their manifest has no parameters.lambert_view).
     bool cap_mass_lambert = false;
+    /// --flow lobes with a microfacet base: each lobe weighted by its area A a_j H(μ_j,z) whatever
+    /// ωo instead of its share of the projected area seen from ωo (lobe_brdf.h) — how models made
+    /// before that were fitted (their manifest has no parameters.microfacet_view).
+    bool area_microfacet = false;
 };
 
 /// One node of the quadrature of D: micro-normal ω_k (its frame) and weight c_k.

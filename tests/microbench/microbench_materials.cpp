@@ -20,6 +20,8 @@
 //   prefiltered:<base>:lobes           a model of the same map and options made with --flow lobes (the
 //                                      closed-form f'_low of prefilter/lobe_brdf.h; diffuse and conductor
 //                                      bases: conductor = Beckmann, conductor_ggx = GGX)
+//   prefiltered:<base>:lobes_area      that model loaded as one made before parameters.microfacet_view
+//                                      (microfacet lobes weighted by their area, not their visible share)
 //   the other materials (issue 22: "BSDF sample and eval per material"): rough dielectric,
 //   blinnphong, gltf_pbr, leadr, lean, clean, toksvig, vmf (two lobes), normalmap, each at one
 //   typical setting, listed in a second table
@@ -50,6 +52,7 @@
 #include "core/math.h"
 #include "core/properties.h"
 #include "core/registry.h"
+#include "prefilter/model.h"
 #include "prefilter/pipeline.h"
 #include "median_reporter.h"
 
@@ -250,6 +253,13 @@ int main(int argc, char **argv) {
                 build_small_model(b, dir + "_lobes", true);
                 mats.push_back({fmt::format("prefiltered:{}:lobes", b.name),
                                 material_from_json({{"type", "prefiltered"}, {"model", dir + "_lobes"}, {"level", kFactor}})});
+                // The same model as one made before parameters.microfacet_view: microfacet lobes with
+                // their area weights (lobe_brdf.h), to price the visible form's view weights.
+                prefilter::PrefilteredModel old = prefilter::PrefilteredModel::load(dir + "_lobes");
+                old.manifest["parameters"].erase("microfacet_view");
+                old.save(dir + "_lobes_area");
+                mats.push_back({fmt::format("prefiltered:{}:lobes_area", b.name),
+                                material_from_json({{"type", "prefiltered"}, {"model", dir + "_lobes_area"}, {"level", kFactor}})});
             }
             for (auto &[name, m] : mats) {
                 keep.push_back(m);
