@@ -189,7 +189,6 @@ public:
     void prefetch(Vec2 uv) const;
     /// eval(ctx, wo, wi[b]) for b < n into out[b] (the prefilter's next-event splat).
     void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
-    /// The lobes of the patch holding uv: [first, last).
     /// Patch k's lobes [begin, end).
     std::pair<const Lobe *, const Lobe *> lobes(size_t k) const;
     const LobeBase &base() const { return m_base; }
