@@ -9,15 +9,23 @@ Bench.SuiteRegime on scenes/bench/suite.json:
     (powers of two that divide the map, after a clamp/mirror extension, into a multiple of M
     coarse cells, as `meso prefilter --scales` requires), the one nearest the target's median
     footprint in log scale (a coarse cell about one pixel). With several targets, each one's
-    median is measured with the other targets' displacement removed.
+    median is measured with the other targets' displacement removed;
+  * every target's detail is sub-pixel or kept: at most --max-pixel-band (2%) of its map's slope
+    energy lies at wavelengths between half its median footprint P and P
+    (scripts/experiments/slope_spectrum). Detail there is resolved or aliased into the converged
+    image (moire), so a level that prefilters it is biased and one that keeps it keeps its
+    noise: no level can win (the session-31 plane, 16 x 16 tiles: 0.55; relief, 2048^2 with
+    8-16-texel noise: 0.39). Detail above P stays in the coarse geometry h_low.
 Prints one line per scene and target. Exit 1 with a list of what fails.
 Usage: check_bench_regime.py [SUITE] [--meso build/meso] [--out DIR] [--min-texels 16]
+                             [--max-pixel-band 0.02]
 """
 import argparse
 import copy
 import json
 import math
 import os
+import subprocess
 import sys
 import tempfile
 
@@ -26,7 +34,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, os.path.join(ROOT, "scripts", "experiments"))
-from meso_common import apply_define, load_exr, read_scene, run  # noqa: E402
+from meso_common import apply_define, load_exr, read_pfm, read_scene, run, slope_fractions  # noqa: E402
 
 FOOTPRINT = 'integrator={"type":"aov","aov":"footprint","resolution":1e-9}'
 
@@ -61,6 +69,36 @@ def allowed_levels(disp_info, prefilter_opts):
 def called_for(levels, texels):
     """The level nearest `texels` in log scale (ties to the finer one)."""
     return min(levels, key=lambda f: (abs(math.log2(f) - math.log2(texels)), f))
+
+
+def map_heights(meso, mapobj, scene_dir, tmp, tag):
+    """The displacement map's heights (one tile) as an array: an inline generator object through
+    `meso genmap` (its `image` resolves against the scene's directory), or a map file."""
+    pfm = os.path.join(tmp, f"{tag}_map.pfm")
+    if isinstance(mapobj, dict):
+        exr = os.path.join(tmp, f"{tag}_map.exr")
+        cmd = [meso, "genmap", mapobj["generator"], "-o", exr]
+        for k, v in mapobj.items():
+            if k != "generator":
+                cmd += ["-p", f"{k}={v}"]
+        subprocess.run(cmd, cwd=scene_dir, check=True, stdout=subprocess.DEVNULL)
+        src = exr
+    else:
+        src = os.path.normpath(os.path.join(scene_dir, mapobj))
+    run([meso, "convert", src, pfm])
+    h = read_pfm(pfm)
+    return h[..., 0] if h.ndim == 3 else h
+
+
+def check_pixel_band(a, name, i, sj, scene_dir, median, tmp, bad):
+    """The fraction of the target's slope energy between half a pixel and a pixel (see above)."""
+    h = map_heights(a.meso, sj["shapes"][i]["displacement"]["map"], scene_dir, tmp, f"{name}_s{i}")
+    above_p, above_half = slope_fractions(h, [median], divisors=(1, 2))[median]
+    band = above_half - above_p
+    print(f"  shapes[{i}]: slope energy above P {above_p:.3f}, between P/2 and P {band:.3f}", flush=True)
+    if band > a.max_pixel_band:
+        bad.append(f"{name}: shapes[{i}] has {band:.3f} of its slope energy between half a pixel and a pixel "
+                   f"(P = {median:.1f} texels; at most {a.max_pixel_band:g}): pixel-scale detail, outside the regime")
 
 
 def check_scene(a, name, entry, sdir, tmp, bad):
@@ -107,6 +145,7 @@ def check_scene(a, name, entry, sdir, tmp, bad):
         if want != t["level"]:
             bad.append(f"{name}: shapes[{i}] level x{t['level']}, but its footprint ({own['median']:.1f} texels a "
                        f"pixel) calls for x{want}")
+        check_pixel_band(a, name, i, sj, os.path.dirname(scene), own["median"], tmp, bad)
 
 
 def main():
@@ -115,6 +154,8 @@ def main():
     ap.add_argument("--meso", default=os.path.join(ROOT, "build", "meso"))
     ap.add_argument("--out", default="", help="where the aov renders go (default: a temporary directory)")
     ap.add_argument("--min-texels", type=float, default=16.0)
+    ap.add_argument("--max-pixel-band", type=float, default=0.02,
+                    help="largest fraction of a target's slope energy between P/2 and P texels")
     a = ap.parse_args()
     with open(a.suite) as f:
         suite = json.load(f)

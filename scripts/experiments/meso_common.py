@@ -135,3 +135,20 @@ def absolutize(obj, base_dir):
         if os.path.isfile(p):
             return os.path.normpath(p)
     return obj
+
+
+def slope_fractions(h, footprints, divisors=(1, 2, 4, 8)):
+    """{P: [fraction of slope energy at wavelength > P / d for d in divisors]} of height map h."""
+    h = np.asarray(h, dtype=np.float64)
+    H = np.fft.fft2(h - h.mean())
+    ky = np.fft.fftfreq(h.shape[0])[:, None]
+    kx = np.fft.fftfreq(h.shape[1])[None, :]
+    k2 = kx * kx + ky * ky
+    energy = k2 * np.abs(H) ** 2
+    total = energy.sum()
+    lam = np.full(k2.shape, np.inf)
+    np.divide(1.0, np.sqrt(k2), out=lam, where=k2 > 0)
+    out = {}
+    for p in footprints:
+        out[p] = [float(energy[lam > p / d].sum() / total) if total > 0 else 0.0 for d in divisors]
+    return out
