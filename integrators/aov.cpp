@@ -5,7 +5,9 @@
 //                 texels, issue 4: major axis of the ray-differential footprint in the
 //                 shape's full-resolution map, tiling included, or `resolution` texels
 //                 per unit uv for shapes without a map), "lod" (continuous level i + t of
-//                 the chain `lod_factors` for that footprint, scaled by `lod_bias`),
+//                 the chain `lod_factors` for that footprint, scaled by `lod_bias`; on a
+//                 shape with its own `lod` block, the level the path tracer picks there:
+//                 that block's chain and rule, the metric check, the per-sample footprint),
 //                 "footprint_color" / "lod_color" (the same as viridis false colour:
 //                 log2 footprint over [0, log2 `max_texels`]; level over [0, levels-1])  "normal"
 //   resolution   float  texels per unit uv where the shape has no map               1024
@@ -14,8 +16,10 @@
 //   max_texels   float  top of the footprint colour scale                            4096
 // Misses give 0. Normals are not remapped to [0,1]: the EXR holds the true vectors.
 #include <fmt/format.h>
+#include <algorithm>
 #include <cmath>
 #include "core/error.h"
+#include "core/ray.h"
 #include "geometry/shape.h"
 #include "image/false_colour.h"
 #include "geometry/lod.h"
@@ -43,6 +47,9 @@ public:
     Spectrum li(const Scene &scene, RayDifferential ray, Sampler &, RenderStats &stats) const override {
         SurfaceInteraction si;
         ++stats.rays;
+        // The level aovs look at LoD shapes as the path tracer's camera ray does: at the coarsest
+        // level, whose hit picks the level (integrators/path.cpp). Other aovs see the original.
+        if (m_aov == Aov::Lod || m_aov == Aov::LodColor) ray.mask = lod_ray_mask(LodCoarsestLevel);
         if (!scene.intersect(ray, si)) return Spectrum(0.f);
         switch (m_aov) {
             case Aov::Normal: return {si.ns.x, si.ns.y, si.ns.z};
@@ -58,14 +65,23 @@ public:
                 double w = m_fp.resolution, h = m_fp.resolution;
                 si.shape->texel_grid(w, h);
                 const float texels = footprint_texels(si.dudx, si.dudy, si.dvdx, si.dvdy, w, h);
-                const float level = m_fp.chain.position(texels, m_fp.bias);
+                float level = m_fp.chain.position(texels, m_fp.bias);
+                int levels = m_fp.chain.levels();
+                if (si.shape->lod && (m_aov == Aov::Lod || m_aov == Aov::LodColor)) {
+                    // A shape with its own `lod` block: the level the renderer picks there, with
+                    // the block's chain, bias and rule, the metric check and the per-sample scale.
+                    const LodGroup &g = *si.shape->lod;
+                    const LodSelection sel = select_path_level(g, si, ray.footprint_scale, samples_per_pixel());
+                    level = float(sel.lo) + std::clamp(sel.t, 0.f, 1.f) * float(sel.hi - sel.lo);
+                    levels = g.chain.levels();
+                }
                 switch (m_aov) {
                     case Aov::Footprint: return Spectrum(texels);
                     case Aov::Lod: return Spectrum(level);
                     case Aov::FootprintColor:
                         return viridis_linear(std::log2(std::max(texels, 1.f)) / std::log2(std::max(m_fp.max_texels, 2.f)));
                     default:
-                        return viridis_linear(m_fp.chain.levels() > 1 ? level / float(m_fp.chain.levels() - 1) : 0.f);
+                        return viridis_linear(levels > 1 ? level / float(levels - 1) : 0.f);
                 }
             }
             case Aov::Albedo: {

@@ -51,9 +51,6 @@
 
 namespace meso {
 
-/// The mask bit of a path at the coarsest level of every chain: a chain's last level k is
-/// seen by mask bits k..31 (geometry/embree_accel.cpp), so bit 31 sees every chain's last level.
-constexpr int LodCoarsestLevel = 31;
 /// A pixel's LoD hint (PathIntegrator::pixel_hint): lo | hi << 8 | round(t 65535) << 16 of its
 /// LodSelection (levels < 32, so no hint equals the two markers), or one of the markers.
 constexpr uint32_t kHintUnset = 0xFFFFFFFFu;  ///< not computed yet

@@ -221,6 +221,36 @@ TEST(LodPath, LevelsSwitchAtTheExpectedDistances) {
     EXPECT_NEAR(green_fraction(meso::test::render_scene(*s, spp).image), 1.0, 0.01);
 }
 
+// The `lod` aov on a shape with its own `lod` block reports the level the path tracer picks
+// there (its chain, bias and per-sample footprint), not the aov's own `lod_factors`: at the
+// footprints of LevelsSwitchAtTheExpectedDistances the centre pixels read t = 0, 0.5 and 1 of
+// the chain [1, 4], where the aov's chain [1, 8, 64] would give 0 everywhere.
+TEST(LodAov, LevelOnALodShapeIsThePathTracersChoice) {
+    const int spp = 64;  // footprints scaled by max(1/8, 1/sqrt(64)), as in the path test
+    const double texels_per_unit_distance = 2.0 * std::tan(20.0 * 3.14159265358979 / 180.0) / 101.0 * 128.0 / 8.0;
+    auto centre = [](const meso::Image &img) {
+        double sum = 0;
+        for (int y = 48; y <= 52; ++y)
+            for (int x = 48; x <= 52; ++x) sum += img.at(x, y, 0);
+        return sum / 25.0;
+    };
+    auto aov_scene = [&](double d, const char *extra) {
+        std::string t = lod_plane_scene(d, "stochastic", spp, extra);
+        const std::string from = R"({"type": "path", "max_depth": 2})";
+        t.replace(t.find(from), from.size(), R"({"type": "aov", "aov": "lod", "lod_factors": [1, 8, 64]})");
+        return meso::test::load_json_scene("lod_aov_level.json", t);
+    };
+    for (double w : {2.0, 2.0 * std::sqrt(2.0), 4.0}) {
+        const double d = w / texels_per_unit_distance, t = std::clamp(1.0 + std::log2(w / 4.0), 0.0, 1.0);
+        meso::RenderResult r = meso::test::render_scene(*aov_scene(d, ""), spp);
+        EXPECT_NEAR(centre(r.image), t, 0.03) << "footprint " << w << " texels";
+        EXPECT_EQ(r.nan_count, 0);
+    }
+    // The block's bias 2 moves the 2-texel distance to level 1 alone.
+    EXPECT_NEAR(centre(meso::test::render_scene(*aov_scene(2.0 / texels_per_unit_distance, R"(, "bias": 2)"), spp).image),
+                1.0, 1e-3);
+}
+
 // With every level the original model, an LoD render equals the plain render within noise.
 TEST(LodPath, SameModelLevelsAddNoBias) {
     const char *base = R"({

@@ -13,6 +13,9 @@ constexpr float MaxFootprintStretch = 1e3f;
 /// Embree ray mask of a ray that sees LoD level `level` (0..31): shapes without LoD are
 /// seen by every ray, level k of an LoD chain only by rays with bit k (geometry/lod.h).
 constexpr uint32_t lod_ray_mask(int level) { return 1u << level; }
+/// The mask bit of a ray at the coarsest level of every chain: a chain's last level k is seen by
+/// mask bits k..31 (geometry/embree_accel.cpp), so bit 31 sees every chain's last level.
+constexpr int LodCoarsestLevel = 31;
 
 struct Ray {
     Vec3 o, d;
