@@ -408,8 +408,8 @@ void PathIntegrator::add_light_sample(const Scene &scene, const RayDifferential 
     const Light *light = scene.sample_light(ul, pmf);
     LightSample ls;
     const bool by_quadrature = env_by_quadrature && light && light->is_infinite();  // already counted
-    if (!light || !(pmf > 0.f) || by_quadrature || !light->sample(LightSampleContext{si.p, ctx.ng}, u2, ls) ||
-        !(ls.pdf > 0.f) || ls.L.is_black())
+    if (!light || !(pmf > 0.f) || by_quadrature || !light->sample(LightSampleContext{si.p, ctx.ng, true}, u2, ls) ||
+        !(ls.pdf > 0.f) || (!ls.L_deferred && ls.L.is_black()))
         return;
     phase.emplace(Phase::Bsdf);
     Vec3 wi = ctx.frame.to_local(ls.wi);
@@ -426,7 +426,7 @@ void PathIntegrator::add_light_sample(const Scene &scene, const RayDifferential 
     if (scene.occluded(shadow)) return;
     float light_pdf = pmf * ls.pdf;
     float w = ls.delta ? 1.f : power_heuristic(light_pdf, bsdf_pdf);
-    st.L += st.beta * f * ls.L * (w / light_pdf);
+    st.L += st.beta * f * light->sampled_radiance(ls) * (w / light_pdf);
 }
 
 std::string PathIntegrator::to_string() const {

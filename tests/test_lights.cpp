@@ -334,6 +334,47 @@ TEST(EnvMap, SamplingMatchesPdfChiSquare) {
     EXPECT_GT(pval, 1e-3) << "chi2 = " << chi2 << " dof = " << dof;
 }
 
+TEST(EnvMap, DeferredRadianceIsTheSampledRadiance) {
+    // With ctx.defer_radiance, sample() leaves L to sampled_radiance() (read after the caller's
+    // shadow ray): the same direction, pdf and, bit for bit, radiance as an immediate sample.
+    // The deferred uv is the inverse CDF's: one row for a fixed u.y, non-decreasing in u.x
+    // along it and in u.y across rows (Sobol strata stay contiguous).
+    Image img = hotspot_map(37, 19, 0.3f, 0.35f);
+    EnvMapLight env(img, 1.f, Transform::rotate(Vec3(1, 2, 0.5f), 37.f), "defer");
+    PCG32 rng(23);
+    for (int i = 0; i < 20000; ++i) {
+        const Vec2 u(rng.next_float(), rng.next_float());
+        LightSample a, b;
+        const bool ok = env.sample({Vec3(), Vec3()}, u, a);
+        ASSERT_EQ(env.sample({Vec3(), Vec3(), true}, u, b), ok);
+        if (!ok) continue;
+        ASSERT_FALSE(a.L_deferred);
+        ASSERT_TRUE(b.L_deferred);
+        ASSERT_TRUE(a.wi.x == b.wi.x && a.wi.y == b.wi.y && a.wi.z == b.wi.z && a.pdf == b.pdf);
+        const Spectrum La = env.sampled_radiance(a), Lb = env.sampled_radiance(b);
+        ASSERT_TRUE(La.r == a.L.r && La.g == a.L.g && La.b == a.L.b);
+        ASSERT_TRUE(Lb.r == La.r && Lb.g == La.g && Lb.b == La.b) << i;
+        ASSERT_NEAR(Lb.g, env.eval({}, -b.wi).g, 1e-5f * Lb.g + 1e-7f);
+    }
+    const int K = 2048;
+    for (float fixed : {0.03f, 0.5f, 0.97f}) {
+        Vec2 prev_row(-1.f, -1.f), prev_col(-1.f, -1.f);
+        for (int k = 0; k < K; ++k) {
+            const float t = (k + 0.5f) / K;
+            LightSample r, c;
+            ASSERT_TRUE(env.sample({Vec3(), Vec3(), true}, {t, fixed}, r));
+            ASSERT_TRUE(env.sample({Vec3(), Vec3(), true}, {fixed, t}, c));
+            ASSERT_GE(r.uv.x, prev_row.x) << "u.x " << t;
+            if (k > 0) {
+                ASSERT_EQ(r.uv.y, prev_row.y);
+            }
+            ASSERT_GE(c.uv.y, prev_col.y) << "u.y " << t;
+            prev_row = r.uv;
+            prev_col = c.uv;
+        }
+    }
+}
+
 TEST(EnvMap, PowerAndSceneFileErrors) {
     // Constant map: ∫ L dω = 4 pi L exactly; power = pi r^2 · 4 pi L.
     Image img(8, 4, 3);

@@ -27,7 +27,9 @@
 // Sampling tables in float with a guide per 8 cells (sampling/distribution.h: about 8 bytes
 // per texel, an expected O(1) lookup within a cache line or two; the pdf of a direction is
 // one read of two adjacent CDF entries per dimension). Direction <-> uv in float without libm
-// calls (float_trig.h).
+// calls (float_trig.h). With LightSampleContext::defer_radiance (the path integrator's NEE),
+// sample() only prefetches the four texels and sampled_radiance() reads them after the shadow
+// ray, so their misses overlap it.
 // Memory: the RGB float texels plus the distribution tables, reported by to_string()
 // (shown by `meso render --plan`).
 //
@@ -37,6 +39,7 @@
 //   to_world   transform  default none  rotation only, e.g. {"rotate": {"axis": [0,1,0], "angle": 90}}
 #include "lights/envmap.h"
 #include <fmt/format.h>
+#include <xmmintrin.h>
 #include "core/error.h"
 #include "core/properties.h"
 #include "core/registry.h"
@@ -130,15 +133,24 @@ Spectrum EnvMapLight::radiance(Vec3 d_world) const {
     return radiance_uv(direction_to_uv(d));
 }
 
-Spectrum EnvMapLight::radiance_uv(Vec2 uv) const {
+void EnvMapLight::bilinear_texels(Vec2 uv, int &x0, int &x1, int &y0, int &y1, float &fx, float &fy) const {
     float x = uv.x * m_w - 0.5f, y = uv.y * m_h - 0.5f;
     float fx0 = std::floor(x), fy0 = std::floor(y);
-    float fx = x - fx0, fy = y - fy0;
+    fx = x - fx0;
+    fy = y - fy0;
     // u is in [0, 1), so fx0 is in [-1, m_w - 1]: wrap without integer division.
-    int x0 = int(fx0), x1 = x0 + 1;
+    x0 = int(fx0);
+    x1 = x0 + 1;
     if (x0 < 0) x0 += m_w;
     if (x1 >= m_w) x1 -= m_w;
-    int y0 = clamp(int(fy0), 0, m_h - 1), y1 = clamp(int(fy0) + 1, 0, m_h - 1);
+    y0 = clamp(int(fy0), 0, m_h - 1);
+    y1 = clamp(int(fy0) + 1, 0, m_h - 1);
+}
+
+Spectrum EnvMapLight::radiance_uv(Vec2 uv) const {
+    int x0, x1, y0, y1;
+    float fx, fy;
+    bilinear_texels(uv, x0, x1, y0, y1, fx, fy);
     return (texel(x0, y0) * (1.f - fx) + texel(x1, y0) * fx) * (1.f - fy) +
            (texel(x0, y1) * (1.f - fx) + texel(x1, y1) * fx) * fy;
 }
@@ -162,7 +174,7 @@ Spectrum EnvMapLight::eval_pdf(const LightSampleContext &, const LightHit &, con
     return radiance_uv(uv);
 }
 
-bool EnvMapLight::sample(const LightSampleContext &, Vec2 u, LightSample &out) const {
+bool EnvMapLight::sample(const LightSampleContext &ctx, Vec2 u, LightSample &out) const {
     float pdf_uv;
     Vec2 uv = m_distr.sample_continuous(u, &pdf_uv);
     if (!(pdf_uv > 0.f)) return false;
@@ -180,8 +192,22 @@ bool EnvMapLight::sample(const LightSampleContext &, Vec2 u, LightSample &out) c
     out.pdf = pdf;
     out.delta = false;
     // The sampled uv gives the radiance directly (the bilinear lookup is continuous, so this
-    // equals radiance(wi) up to float round-off, without a second atan2/acos).
-    out.L = radiance_uv(uv);
+    // equals radiance(wi) up to float round-off, without a second atan2/acos). Deferred: the
+    // texels' lines are fetched now and read after the caller's shadow ray (sampled_radiance).
+    if (ctx.defer_radiance) {
+        int x0, x1, y0, y1;
+        float fx, fy;
+        bilinear_texels(uv, x0, x1, y0, y1, fx, fy);
+        for (int y : {y0, y1}) {
+            const Spectrum *row = m_texels.data() + size_t(y) * m_w;
+            _mm_prefetch(reinterpret_cast<const char *>(row + x0), _MM_HINT_T0);
+            _mm_prefetch(reinterpret_cast<const char *>(row + x1 + 1) - 1, _MM_HINT_T0);  // x1's last byte
+        }
+        out.uv = uv;
+        out.L_deferred = true;
+    } else {
+        out.L = radiance_uv(uv);
+    }
     return true;
 }
 

@@ -41,6 +41,8 @@ public:
 
     void preprocess(Vec3 scene_center, float scene_radius) override { m_radius = scene_radius; }
     bool sample(const LightSampleContext &ctx, Vec2 u, LightSample &out) const override;
+    /// With ctx.defer_radiance, sample() prefetches the four texels and this reads them.
+    Spectrum sampled_radiance(const LightSample &ls) const override { return ls.L_deferred ? radiance_uv(ls.uv) : ls.L; }
     float pdf(const LightSampleContext &ctx, const Vec3 &wi, const LightHit &hit) const override;
     /// w = -ray.d (as for area lights): returns radiance(-w), the environment seen along ray.d.
     Spectrum eval(const LightHit &hit, const Vec3 &w) const override;
@@ -55,6 +57,8 @@ private:
     /// The solid-angle pdf of local direction d (unit) whose texture coordinates are uv.
     float pdf_local(Vec3 d, Vec2 uv) const;
     Spectrum texel(int x, int y) const;
+    /// The bilinear lookup's texels at uv: columns x0, x1, rows y0, y1, weights fx, fy of x1, y1.
+    void bilinear_texels(Vec2 uv, int &x0, int &x1, int &y0, int &y1, float &fx, float &fy) const;
 
     int m_w = 0, m_h = 0;
     std::vector<Spectrum> m_texels;  ///< linear radiance × scale, row-major, top row first

@@ -15,6 +15,10 @@ class Shape;
 struct LightSampleContext {
     Vec3 p;   ///< world position of the shading point
     Vec3 n;   ///< geometric normal there (zero if none); may be used to cull
+    /// The caller reads the sample's radiance through Light::sampled_radiance(), after its shadow
+    /// ray: a light may then leave LightSample::L for later (L_deferred) and only prefetch the
+    /// data it needs, so that the miss overlaps the ray (the environment map's texels).
+    bool defer_radiance = false;
 };
 
 struct LightSample {
@@ -23,6 +27,8 @@ struct LightSample {
     Spectrum L;           ///< radiance (or intensity / dist^2 for point lights) arriving at p
     float pdf = 0.f;      ///< solid-angle pdf (1 for delta lights)
     bool delta = false;   ///< point, spot, directional
+    bool L_deferred = false;  ///< L not set: Light::sampled_radiance() returns it (at uv)
+    Vec2 uv{};                ///< where a light that deferred L reads it
 };
 
 /// The information pdf()/eval need about a point found on an area light by a ray.
@@ -39,6 +45,8 @@ public:
     /// Called once the scene is built; bounds of everything (infinite lights need them).
     virtual void preprocess(Vec3 scene_center, float scene_radius) { (void)scene_center; (void)scene_radius; }
     virtual bool sample(const LightSampleContext &ctx, Vec2 u, LightSample &out) const = 0;
+    /// The radiance of a sample (out.L, or its deferred value: see defer_radiance).
+    virtual Spectrum sampled_radiance(const LightSample &ls) const { return ls.L; }
     /// Solid-angle pdf that sample() would produce direction wi (towards `hit` for area
     /// lights; `hit` is ignored for infinite lights).
     virtual float pdf(const LightSampleContext &ctx, const Vec3 &wi, const LightHit &hit) const = 0;
