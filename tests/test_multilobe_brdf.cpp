@@ -95,17 +95,50 @@ TEST(MultiLobeBrdf, SharpLobeReducesToBase) {
 
 // ------------------------------------------------------------------ (3) quadrature vs dense eq. 5
 
+namespace {
+/// Eq. 5 as printed: every node at its absolute weight c_k (QuadratureOptions::absolute_weights),
+/// the integral brute_eq5 computes.
+QuadratureOptions eq5_as_printed(int polar = 4, int azimuth = 6) {
+    QuadratureOptions q;
+    q.polar = polar, q.azimuth = azimuth;
+    q.absolute_weights = true;
+    return q;
+}
+
+/// A probe "base" for brute_eq5: eval = (lo.z)^power where both directions face the node (0
+/// otherwise), so brute_eq5(probe, wo, wo) = ∫ D(ω) <ω, wo>^power [<ω, wo> > 0] dω.
+struct CosinePowerProbe final : Material {
+    int power = 0;
+    explicit CosinePowerProbe(int p) : power(p) {}
+    Spectrum eval(const ShadingContext &, const Vec3 &wo, const Vec3 &wi) const override {
+        return wo.z > 0.f && wi.z > 0.f ? Spectrum(float(std::pow(double(wo.z), power))) : Spectrum(0.f);
+    }
+    float pdf(const ShadingContext &, const Vec3 &, const Vec3 &) const override { return 0.f; }
+    bool sample(const ShadingContext &, const Vec3 &, float, Vec2, BSDFSample &) const override { return false; }
+    uint32_t flags() const override { return BSDF_Reflection | BSDF_Smooth; }
+    std::string to_string() const override { return "CosinePowerProbe"; }
+};
+}  // namespace
+
 TEST(MultiLobeBrdf, EvalMatchesDenseQuadratureOfEq5) {
     // The independent brute force first validated by itself: a dense MultiLobeBrdf (32 x 64 per
     // lobe) must agree with it, so both implement the same integral.
     auto diffuse = make_material(kDiffuse);
     auto cond = make_material(kConductor);
     const PatchNdf ndf = two_lobes();
-    MultiLobeBrdf dense_d(diffuse, ndf, {32, 64}), dense_c(cond, ndf, {32, 64});
-    MultiLobeBrdf def_d(diffuse, ndf), def_c(cond, ndf);
-    double worst_dense = 0.0, worst_def_d = 0.0, worst_def_c = 0.0;
+    MultiLobeBrdf dense_d(diffuse, ndf, eq5_as_printed(32, 64)), dense_c(cond, ndf, eq5_as_printed(32, 64));
+    MultiLobeBrdf def_d(diffuse, ndf, eq5_as_printed()), def_c(cond, ndf, eq5_as_printed());
+    // The shares (the default): eq. 5 times P / A(wo), P = ∫ D ω.z dω (eq. 3) and A(wo) = ∫ D
+    // [<ω, wo> > 0] dω, both by the same brute force with a probe base.
+    MultiLobeBrdf share_d(diffuse, ndf), share_c(cond, ndf);
+    const CosinePowerProbe area(0), projected(1);
+    const double P = brute_eq5(projected, ndf, Vec3(0, 0, 1), Vec3(0, 0, 1), 200, 256);
+    double worst_dense = 0.0, worst_def_d = 0.0, worst_def_c = 0.0, worst_share = 0.0;
     for (auto [wo, wi] : direction_pairs()) {
         const double bd = brute_eq5(*diffuse, ndf, wo, wi, 200, 256), bc = brute_eq5(*cond, ndf, wo, wi, 200, 256);
+        const double share = P / brute_eq5(area, ndf, wo, wo, 200, 256);
+        worst_share = std::max({worst_share, std::abs(share_d.eval(kCtx, wo, wi).g - share * bd) / (0.8 / kPi),
+                                std::abs(share_c.eval(kCtx, wo, wi).g - share * bc) / std::max(share * bc, 0.8 / kPi)});
         // Relative to the diffuse scale 0.8/π (errors near zeros of the integrand are absolute).
         const double sd = 0.8 / kPi;
         worst_dense = std::max({worst_dense, std::abs(dense_d.eval(kCtx, wo, wi).g - bd) / sd,
@@ -114,11 +147,12 @@ TEST(MultiLobeBrdf, EvalMatchesDenseQuadratureOfEq5) {
         worst_def_c = std::max(worst_def_c, std::abs(def_c.eval(kCtx, wo, wi).g - bc) / std::max(bc, sd));
     }
     std::printf("2-lobe NDF, 27 direction pairs: dense (32x64) vs brute %.2e; default 4x6: diffuse %.2e, "
-                "conductor α=0.3 %.2e (relative)\n",
-                worst_dense, worst_def_d, worst_def_c);
+                "conductor α=0.3 %.2e (relative); shares (P = %.5f) 4x6 vs brute %.2e\n",
+                worst_dense, worst_def_d, worst_def_c, P, worst_share);
     EXPECT_LT(worst_dense, 2e-3);
     EXPECT_LT(worst_def_d, 0.02);
     EXPECT_LT(worst_def_c, 0.05);
+    EXPECT_LT(worst_share, 0.05);
 }
 
 TEST(MultiLobeBrdf, QuadratureErrorVsNodeCount) {
@@ -139,7 +173,7 @@ TEST(MultiLobeBrdf, QuadratureErrorVsNodeCount) {
             std::printf("%-6g %-10s ", kappa, bi ? "cond0.3" : "diffuse");
             double last = 0.0;
             for (auto &r : rules) {
-                MultiLobeBrdf m(base, ndf, {r[0], r[1]});
+                MultiLobeBrdf m(base, ndf, eq5_as_printed(r[0], r[1]));
                 double worst = 0.0;
                 size_t i = 0;
                 for (auto [wo, wi] : direction_pairs()) {
@@ -169,8 +203,9 @@ TEST(MultiLobeBrdf, EnergyOfRealPatch) {
     popt.cell_size = 1.0 / 32;
     const PatchNdf ndf = fit_patch_ndf(hf, 8, 1, 2, popt);
     auto white = make_material(R"({"type":"diffuse","reflectance":1})");
-    MultiLobeBrdf m(white, ndf);
-    MultiLobeBrdf dense(white, ndf, {16, 32});
+    MultiLobeBrdf m(white, ndf, eq5_as_printed());
+    MultiLobeBrdf dense(white, ndf, eq5_as_printed(16, 32));
+    MultiLobeBrdf share(white, ndf);  // the default: the shares
     double kmin = 1e30, kmax = 0;
     for (const VmfLobe &l : ndf.lobes) kmin = std::min(kmin, l.kappa), kmax = std::max(kmax, l.kappa);
     std::printf("patch: %zu lobes, κ in [%.3g, %.3g], amplitude %.5f, area ratio %.5f; nodes %zu, Σc %.5f, "
@@ -195,6 +230,17 @@ TEST(MultiLobeBrdf, EnergyOfRealPatch) {
         // microsurface area (area_ratio − 1) plus the quadrature error; it is not ≤ 1.
         EXPECT_LE(a, ndf.area_ratio * (1.0 + 1e-2));
         EXPECT_GT(a, 0.5);
+        // The shares: the weights of the nodes facing wo sum to P = Σ c_k ω_k.z (1 up to the
+        // quadrature), and each node of a white Lambertian reflects at most all it receives, so
+        // the albedo is at most P at every wo (no excess area, no cut-off at grazing wo beyond
+        // what the facing nodes send below the macro horizon).
+        const double as = hemisphere_albedo(share, wo);
+        const AlbedoEstimate es = estimate_albedo(share, kCtx, wo, 200000, 7 + uint64_t(th));
+        std::printf("        shares: albedo %.5f (own sampler %.5f ± %.5f), P %.5f\n", as, double(es.mean.g),
+                    double(es.stderr_.g), share.projected_area());
+        EXPECT_NEAR(double(es.mean.g), as, 5.0 * double(es.stderr_.g) + 2e-3);
+        EXPECT_LE(as, share.projected_area() * (1.0 + 1e-3));
+        EXPECT_GT(as, 0.8);
     }
 }
 

@@ -413,7 +413,8 @@ void white_furnace(const std::string &flow) {
     // Paper 004 reports 0.988 (twill) and 0.999 (noise). Here (N = 15, 256 lines per wo bin),
     // eq5: 1.000, 0.971, 1.032, 1.015 at 0, 30, 60, 75 degrees (mean 1.005; earlier builds 0.985,
     // 0.979, 0.981, 1.006); the spread is the noise and the bin interpolation of S. lobes: 0.983,
-    // 0.980, 0.979, 1.009 (mean 0.988).
+    // 0.980, 0.979, 1.009 (mean 0.988). With the quadrature's node shares (multilobe_brdf.h, "View
+    // weights"): eq5 1.001, 0.986, 0.973, 0.998 (mean 0.989); visible 1.003, 0.986, 0.971, 0.999.
     EXPECT_GE(mean_ir, 0.98);
     EXPECT_GE(worst_ir, 0.97);
     EXPECT_LT(best_single, worst_ir);  // without interreflections energy is lost at every angle
@@ -423,6 +424,8 @@ void white_furnace(const std::string &flow) {
 TEST(PrefilteredModel, WhiteFurnace) { white_furnace("eq5"); }
 // The closed-form f'_low (prefilter/lobe_brdf.h): its approximation of eq. 5 is absorbed by T and S.
 TEST(PrefilteredModel, WhiteFurnaceLobes) { white_furnace("lobes"); }
+// --flow visible, whose absolute weights grew towards grazing ωo (multilobe_brdf.h, projected_area).
+TEST(PrefilteredModel, WhiteFurnaceVisible) { white_furnace("visible"); }
 
 // --- the fast estimator (splatted next-event terms, line pairs, common random numbers, the
 // stopping rule) against brute force and against its own spread -----------------------------

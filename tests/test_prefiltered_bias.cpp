@@ -125,11 +125,14 @@ namespace {
 /// never straddle them) at level 4, where h_low keeps the facets: f'_low (lobes form, no tables)
 /// on h_low against the original, per family, at one direction pair. Every patch of one family
 /// is the same tilted plane, so both models are closed-form and exact up to the factor studied.
+/// q picks the form of f'_low (lobes, or the quadrature flows eq5 / visible); the facets' normals
+/// (the fitted NDFs' main lobes) into normals[0..2) when not null.
 struct FacetRatios {
     double a = 0, b = 0, a_se = 0, b_se = 0;
 };
 
-FacetRatios facet_ratios(bool visible, Vec3 wi, Vec3 wo, uint64_t seed) {
+FacetRatios facet_ratios(const QuadratureOptions &q, const char *base_json, Vec3 wi, Vec3 wo, uint64_t seed,
+                         Vec3 *normals = nullptr) {
     const std::map<std::string, std::string> par{{"width", "64"},    {"height", "16"},
                                                  {"periods", "4"},   {"angle_a", "18.43494882292201"},
                                                  {"angle_b", "45"}};
@@ -145,12 +148,11 @@ FacetRatios facet_ratios(bool visible, Vec3 wi, Vec3 wo, uint64_t seed) {
     nopt.cell_size = 1.0 / fine.width;
     nopt.em.exact_kappa = true;
     nopt.em.max_kappa = 1e9;
-    const nlohmann::json bj = nlohmann::json::parse(kConductor);
-    auto base = make_material(kConductor);
-    QuadratureOptions q;
-    q.lobes = true;
-    q.area_microfacet = !visible;
-    const SvMultiLobe f(base, fit_svndf(units, F, nopt), h_low.width, h_low.height, q, bj, "base");
+    const nlohmann::json bj = nlohmann::json::parse(base_json);
+    auto base = make_material(base_json);
+    const std::vector<PatchNdf> ndf = fit_svndf(units, F, nopt);
+    if (normals) normals[0] = ndf[0].lobes.at(0).mu, normals[1] = ndf[3].lobes.at(0).mu;  // facets a, b
+    const SvMultiLobe f(base, ndf, h_low.width, h_low.height, q, bj, "base");
     EffectiveBrdfEstimator::Options mo;
     mo.macro_frame = true;
     const EffectiveBrdfEstimator eo(orig, *base), el(low, f, mo);
@@ -185,14 +187,57 @@ TEST(PrefilteredBias, MicrofacetLobesOnTiltedPatchesMatchBruteForce) {
                              {dir_deg(20, 180), dir_deg(60, 0)},  {dir_deg(50, 120), dir_deg(65, 20)}};
     uint64_t seed = 10;
     for (const auto &p : pairs) {
-        const FacetRatios v = facet_ratios(true, p[0], p[1], seed += 2);
+        QuadratureOptions q;
+        q.lobes = true;
+        const FacetRatios v = facet_ratios(q, kConductor, p[0], p[1], seed += 2);
         std::printf("  visible: facet a %.4f +- %.4f, facet b %.4f +- %.4f\n", v.a, v.a_se, v.b, v.b_se);
         EXPECT_NEAR(v.a, 1.0, 0.02 + 4 * v.a_se);
         EXPECT_NEAR(v.b, 1.0, 0.02 + 4 * v.b_se);
     }
     // The old form: 1 / cos(tilt), 1.054 and 1.414 (what models without microfacet_view get).
-    const FacetRatios o = facet_ratios(false, pairs[0][0], pairs[0][1], 3);
+    QuadratureOptions q;
+    q.lobes = true;
+    q.area_microfacet = true;
+    const FacetRatios o = facet_ratios(q, kConductor, pairs[0][0], pairs[0][1], 3);
     std::printf("  area (old): facet a %.4f, facet b %.4f\n", o.a, o.b);
     EXPECT_NEAR(o.a, 1.0 / std::cos(std::atan(1.0 / 3.0)), 0.02 + 4 * o.a_se);
     EXPECT_NEAR(o.b, std::sqrt(2.0), 0.03 + 4 * o.b_se);
+}
+
+TEST(PrefilteredBias, QuadratureFlowsOnTiltedPatchesMatchBruteForce) {
+    // The quadrature forms of f'_low (--flow eq5 / visible, multilobe_brdf.h) on the tilted facets
+    // above, with a rough conductor and a rough plastic base. Each family's NDF is a delta (one
+    // node at the facet's normal n, c = 1 / n.z), and h_low is the sawtooth itself, so f'_low on
+    // h_low must be the facet's own BRDF: node weight 1. The shares (parameters.quadrature_weights
+    // "share") give P / P = 1 with P = Σ_k c_k ω_k.z = 1. The absolute weights (models made before)
+    // give eq5's c = 1 / n.z (1.054, 1.414), and the visible flow's c <n, ωo> / ωo.z =
+    // <n, ωo> / (n.z ωo.z): 0.16 to 3.0 over these pairs, a factor that differs from facet to facet
+    // at one (ωi, ωo), which no angular S can remove.
+    const Vec3 pairs[][2] = {{dir_deg(0, 0), dir_deg(30, 180)},   {dir_deg(40, 0), dir_deg(40, 180)},
+                             {dir_deg(20, 180), dir_deg(60, 0)},  {dir_deg(50, 120), dir_deg(65, 20)}};
+    const char *const kPlastic =
+        R"({"type": "plastic", "diffuse_reflectance": 0.5, "distribution": "beckmann", "alpha": 0.3})";
+    uint64_t seed = 40;
+    for (const char *base : {kConductor, kPlastic})
+        for (bool projected : {false, true})
+            for (bool absolute : {false, true}) {
+                QuadratureOptions q;
+                q.projected_area = projected;
+                q.absolute_weights = absolute;
+                for (const auto &p : pairs) {
+                    Vec3 n[2];
+                    const FacetRatios v = facet_ratios(q, base, p[0], p[1], seed += 2, n);
+                    // What the weights predict: 1, or the absolute weight of the facet's node.
+                    auto expected = [&](Vec3 m) {
+                        return !absolute ? 1.0 : projected ? dot(m, p[1]) / (double(m.z) * p[1].z) : 1.0 / m.z;
+                    };
+                    std::printf("  %-9s %-7s %-8s: facet a %.4f +- %.4f (expected %.4f), facet b %.4f +- %.4f "
+                                "(expected %.4f)\n",
+                                base == kConductor ? "conductor" : "plastic", projected ? "visible" : "eq5",
+                                absolute ? "absolute" : "share", v.a, v.a_se, expected(n[0]), v.b, v.b_se,
+                                expected(n[1]));
+                    EXPECT_NEAR(v.a, expected(n[0]), 0.002 * expected(n[0]) + 4 * v.a_se);
+                    EXPECT_NEAR(v.b, expected(n[1]), 0.002 * expected(n[1]) + 4 * v.b_se);
+                }
+            }
 }

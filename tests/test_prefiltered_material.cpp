@@ -78,6 +78,30 @@ TEST(PrefilteredModel, SaveLoadRoundTrip) {
     }
 }
 
+TEST(PrefilteredModel, QuadratureWeightsAreRecorded) {
+    // parameters.quadrature_weights: "share" (`meso prefilter` writes it now: the eq5 / visible
+    // nodes weighted by their shares, multilobe_brdf.h); absent (models made before) the absolute
+    // weights their tables were fitted to; anything else is refused, naming the key.
+    EXPECT_TRUE(PrefilteredModel::load(tiny_model().dir).quadrature.absolute_weights);
+    const fs::path root = fs::path(meso::test::scratch_dir("meso_prefiltered_test"));
+    for (const char *value : {"share", "absolute", "shares"}) {
+        PrefilteredModel m = tiny_model().model;
+        m.manifest["parameters"]["quadrature_weights"] = value;
+        const std::string d = (root / (std::string("model_weights_") + value)).string();
+        m.save(d);
+        if (std::string(value) == "shares") {
+            try {
+                PrefilteredModel::load(d);
+                ADD_FAILURE() << "a bad quadrature_weights was accepted";
+            } catch (const MesoError &e) {
+                EXPECT_NE(std::string(e.what()).find("parameters.quadrature_weights"), std::string::npos) << e.what();
+            }
+            continue;
+        }
+        EXPECT_EQ(PrefilteredModel::load(d).quadrature.absolute_weights, std::string(value) == "absolute") << value;
+    }
+}
+
 // ------------------------------------------------------------------ (b) eval = T·S·f'_low
 
 TEST(PrefilteredMaterial, EvalIsTimesSTimesMultiLobe) {

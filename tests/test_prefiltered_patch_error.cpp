@@ -4,8 +4,9 @@
 //
 // For K random coarse patches P and fixed direction pairs (ωi, ωo): g_P, the original's effective
 // BRDF over P (prefilter/effective_brdf.h; single bounce, or every bounce with
-// MESO_PATCH_ERROR_IR=1), and m_P, f'_low (lobes form, no tables) on h_low over the same patch, once
-// with the model's view weights and once with the other microfacet form (area / visible). Printed
+// MESO_PATCH_ERROR_IR=1), and m_P, f'_low (no tables) on h_low over the same patch, once with the
+// model's view weights and once with the other form (lobes: microfacet_view area / visible; eq5 and
+// visible: quadrature_weights absolute / share). Printed
 // per pair: k = Σ g / Σ m (the global scale an angular S can give) and the relative error that
 // scale leaves, Σ_P [(g_P − k m_P)² − noise] / Σ_P g_P² (what T S cannot remove). Options:
 // MESO_PATCH_ERROR_LEVEL (default 4), MESO_PATCH_ERROR_PATCHES (64), MESO_PATCH_ERROR_LINES (1024).
@@ -80,7 +81,8 @@ TEST(PrefilteredPatchError, LevelAgainstBruteForce) {
     const Heightfield low(L->h_low, float(m.height_scale * L->width() / m.tile_size), 0.f);
     auto base = meso::test::make_material(m.base.dump());
     QuadratureOptions other = m.quadrature;
-    other.area_microfacet = !other.area_microfacet;
+    if (m.quadrature.lobes) other.area_microfacet = !other.area_microfacet;
+    else other.absolute_weights = !other.absolute_weights;  // the quadrature flows (eq5 / visible)
     const SvMultiLobe own(base, L->ndf, L->width(), L->height(), m.quadrature, m.base, "base");
     const SvMultiLobe alt(base, L->ndf, L->width(), L->height(), other, m.base, "base");
     EffectiveBrdfEstimator::Options mo;
@@ -94,7 +96,9 @@ TEST(PrefilteredPatchError, LevelAgainstBruteForce) {
     const double pairs[][3] = {{45, 66, 188}, {61, 60, 189}, {70, 50, 180}, {74, 37, 184},
                                {77, 15, 170}, {68, 57, 216}, {30, 30, 180}, {60, 20, 150}};
     std::printf("level x%d, %d patches, %zu lines, %s; forms: model's (%s) / other\n", F, K, lines,
-                bounces == 1 ? "single bounce" : "every bounce", m.quadrature.area_microfacet ? "area" : "visible");
+                bounces == 1 ? "single bounce" : "every bounce",
+                m.quadrature.lobes ? (m.quadrature.area_microfacet ? "lobes, area" : "lobes, visible")
+                                   : (m.quadrature.absolute_weights ? "quadrature, absolute" : "quadrature, share"));
     for (const auto &p : pairs) {
         const Vec3 wo = dir_deg(p[0], 0), wi = dir_deg(p[1], p[2]);
         std::vector<Value> g(static_cast<size_t>(K)), a(static_cast<size_t>(K)), b(static_cast<size_t>(K));

@@ -226,6 +226,13 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
         throw MesoError(fmt::format("{}: parameters.microfacet_view: expected \"visible\" or \"area\", got \"{}\"",
                                     where, mview));
     m.quadrature.area_microfacet = mview == "area";
+    // parameters.quadrature_weights (absent in models made before the eq5 / visible quadrature
+    // weighted its nodes by their shares of the facing nodes' weight).
+    const std::string qw = par.value("quadrature_weights", std::string("absolute"));
+    if (qw != "absolute" && qw != "share")
+        throw MesoError(fmt::format("{}: parameters.quadrature_weights: expected \"share\" or \"absolute\", got \"{}\"",
+                                    where, qw));
+    m.quadrature.absolute_weights = qw == "absolute";
     if (m.map_width < 1 || m.map_height < 1 || !(m.tile_size > 0) || m.lobes < 1 || m.lobes > 64)
         throw MesoError(fmt::format("{}: invalid map size, tile_size or lobes", where));
     for (const auto &lj : need(j, "levels", where)) {

@@ -124,38 +124,44 @@ double MultiLobeBrdf::selection_total(const Vec3 &wo) const {
 
 Spectrum MultiLobeBrdf::eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
     if (!(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
-    double r = 0.0, g = 0.0, b = 0.0;
+    double r = 0.0, g = 0.0, b = 0.0, total = 0.0;
     for (const NdfNode &k : m_nodes) {
         const Vec3 lo = k.frame.to_local(wo);
         if (!(lo.z > 0.f)) continue;
+        const double w = weight(k, lo.z, wo.z);
+        total += w;
         const Vec3 li = k.frame.to_local(wi);
         if (!(li.z > 0.f)) continue;
         const Spectrum f = m_base->eval(ctx, lo, li);  // f · <ω_k, ωi>
-        const double w = weight(k, lo.z, wo.z);
         r += w * f.r, g += w * f.g, b += w * f.b;
     }
-    return Spectrum(float(r), float(g), float(b));
+    const double s = view_scale(total);
+    return Spectrum(float(s * r), float(s * g), float(s * b));
 }
 
 void MultiLobeBrdf::eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const {
     thread_local std::vector<double> acc;
     acc.assign(size_t(n) * 3, 0.0);
+    double total = 0.0;
     if (wo.z > 0.f) {
         for (const NdfNode &k : m_nodes) {
             const Vec3 lo = k.frame.to_local(wo);
             if (!(lo.z > 0.f)) continue;
+            const double w = weight(k, lo.z, wo.z);
+            total += w;
             for (int b = 0; b < n; ++b) {
                 if (!(wi[b].z > 0.f)) continue;
                 const Vec3 li = k.frame.to_local(wi[b]);
                 if (!(li.z > 0.f)) continue;
                 const Spectrum f = m_base->eval(ctx, lo, li);
-                const double w = weight(k, lo.z, wo.z);
                 double *a = &acc[size_t(b) * 3];
                 a[0] += w * f.r, a[1] += w * f.g, a[2] += w * f.b;
             }
         }
     }
-    for (int b = 0; b < n; ++b) out[b] = Spectrum(float(acc[size_t(b) * 3]), float(acc[size_t(b) * 3 + 1]), float(acc[size_t(b) * 3 + 2]));
+    const double s = view_scale(total);
+    for (int b = 0; b < n; ++b)
+        out[b] = Spectrum(float(s * acc[size_t(b) * 3]), float(s * acc[size_t(b) * 3 + 1]), float(s * acc[size_t(b) * 3 + 2]));
 }
 
 Spectrum MultiLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi, float *pdf_out) const {
@@ -176,7 +182,8 @@ Spectrum MultiLobeBrdf::eval_pdf(const ShadingContext &ctx, const Vec3 &wo, cons
         sum += w * double(p);
     }
     *pdf_out = total > 0.0 ? float(sum / total) : 0.f;
-    return Spectrum(float(r), float(g), float(b));
+    const double s = view_scale(total);
+    return Spectrum(float(s * r), float(s * g), float(s * b));
 }
 
 float MultiLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const {
@@ -291,7 +298,7 @@ bool MultiLobeBrdf::pick_node(const Vec3 &wo, double u, NodePick &pick) const {
     const size_t cj = chosen % kPickBlock;
     pick.frame = Frame(Vec3(cb.nx[cj], cb.ny[cj], cb.nz[cj]));
     pick.lo = pick.frame.to_local(wo);
-    pick.total = total;
+    pick.total = total * view_scale(total);  // Σ(wo) of eval's weights
     pick.u_rescaled = u_rescaled;
     return true;
 }

@@ -13,9 +13,9 @@
 // <ω, ωo> ≤ 0 or <ω, ωi> ≤ 0 are 0 (the base is reflection-only in its own frame), and the
 // macro directions must be above the macro horizon (ωo.z > 0, ωi.z > 0).
 //
-// Modelling note. Eq. 5 is implemented exactly as printed: there is NO projected-area factor
-// <ω, ωo> / <ω_g, ωo> (the area of micro-facet ω seen from the viewer per unit of base area
-// seen from the viewer). Without it the microsurface area D dω (∫ D dω = area_ratio ≥ 1,
+// Modelling note. Eq. 5 is implemented as printed (up to one factor per ωo, the shares below):
+// there is NO projected-area factor <ω, ωo> / <ω_g, ωo> (the area of micro-facet ω seen from the
+// viewer per unit of base area seen from the viewer). Without it the microsurface area D dω (∫ D dω = area_ratio ≥ 1,
 // patch_ndf.h) reflects as if every facet were fully visible and facing the viewer: for a
 // white Lambertian base the directional albedo at normal incidence is ≈ ∫_{ωi·ω>0 region} D dω,
 // i.e. up to area_ratio > 1, and at grazing ωo facets tilted towards the viewer are not
@@ -23,7 +23,30 @@
 // fitted ratios of effective BRDFs), so f'_low alone need not conserve energy. Measured
 // (MultiLobeBrdf.EnergyOfRealPatch: white Lambertian, gaussian map patch with area_ratio
 // 1.0955): albedo 1.048 for θo ≤ 60° (+4.8%), 0.703 at 80°, 0.586 at 89° (facets facing away
-// from ωo are cut off by <ω, ωo> > 0 and nothing re-weights the visible ones).
+// from ωo are cut off by <ω, ωo> > 0 and nothing re-weights the visible ones). (Those are the
+// absolute weights of models made before the shares, below; with the shares: 0.957 for θo ≤ 60°,
+// 0.947 at 89°.)
+//
+// View weights: the shares (manifest parameters.quadrature_weights = "share"). The renderer shades
+// f'_low in the macro frame at hits on h_low, which are already spread over h_low by its own
+// projected area towards ωo. Where h_low keeps the surface's tilt (a coarse facet of normal n),
+// f'_low there must be the facet's own BRDF, i.e. total node weight 1; the weights of eq. 5 as
+// printed give it c = 1 / n.z (a delta NDF's node: D dω = 1 / n.z per unit base area), those of the
+// visible flow c <n, ωo> / ωo.z = <n, ωo> / (n.z ωo.z). A factor that differs from patch to patch
+// at one (ωi, ωo), which no angular S can remove (paper 004 derives eq. 5 for a flat h_low, ω_g
+// = the macro normal, where it is the same for every patch). Measured on tilted sawtooth facets
+// at x4 against brute force of the original (tests/test_prefiltered_bias.cpp,
+// QuadratureFlowsOnTiltedPatchesMatchBruteForce; rough conductor and rough plastic bases): eq5
+// 1.054 and 1.414 (18.4° and 45° facets), visible 0.16 to 3.02 over four direction pairs. So each
+// node weighs its share of the weight of the nodes facing ωo, times P = Σ_k c_k ω_k.z (eq. 3's
+// projected area, 1 up to the quadrature; as lobe_brdf.h's lobes):
+//   w_k(ωo) = v_k(ωo) P / Σ_{j: <ω_j, ωo> > 0} v_j(ωo),   v_k = c_k (eq5) or c_k <ω_k, ωo> (visible),
+// exact for a tilted plane (1.0000 in that test). On a flat h_low it also takes eq5's excess area
+// (Σ c ≈ area_ratio) and its cut-off at grazing ωo out of f'_low, and the visible flow's growth
+// towards grazing ωo (its Σ_k c_k <ω_k, ωo>⁺ / ωo.z ≥ 1). The node choice (P_k ∝ v_k) is the same
+// as before; only Σ(ωo) (NodePick::total, view_scale) changes. Models whose manifest has no
+// parameters.quadrature_weights keep the absolute weights (absolute_weights): their tables were
+// fitted to them.
 //
 // Deterministic quadrature. D is replaced by a fixed weighted set of nodes,
 //   D(ω) dω ≈ Σ_k c_k δ(ω − ω_k),
@@ -63,7 +86,8 @@
 //
 // Stochastic one-node estimator (eval_pdf_stochastic, sample_stochastic; the `prefiltered`
 // material's "estimator": "stochastic"). With g_k(ωo, ωi) = base.eval(F_k ωo, F_k ωi),
-// w_k(ωo) = weight(k) (c_k, or c_k <ω_k, ωo> / ωo.z with projected_area) and Σ(ωo) = Σ_k w_k over
+// w_k(ωo) = eval's weight of node k (the shares above, or with absolute_weights c_k, or c_k <ω_k, ωo> /
+// ωo.z with projected_area) and Σ(ωo) = Σ_k w_k over
 // the nodes visible from ωo (F_k ωo .z > 0; the others have g_k = 0),
 //   eval(ωo, ωi) = Σ_k w_k g_k = Σ_k P_k(ωo) · Σ(ωo) g_k(ωo, ωi),     P_k = w_k / Σ (sample()'s choice),
 // so picking ONE node k by P_k (a uniform u against the cumulative weights, the scan of sample())
@@ -139,7 +163,10 @@ struct QuadratureOptions {
     /// resolves worse: in the white furnace of PrefilteredModel.WhiteFurnace (run on a model
     /// made with --flow visible) the albedo fell furthest from 1 at 75°, where eq. 5 stays
     /// within 1%. meso prefilter therefore defaults to eq. 5 (--flow eq5) and offers this as
-    /// --flow visible.
+    /// --flow visible. (Measured with the absolute weights; the shares, the header's "View
+    /// weights", normalise the sum of the weights to P at every ωo: that white furnace then gives
+    /// 1.003, 0.986, 0.971, 0.999 at 0, 30, 60, 75° with --flow visible, 1.001, 0.986, 0.973, 0.998
+    /// with eq5; PrefilteredModel.WhiteFurnaceVisible.)
     bool projected_area = false;
     /// --flow lobes: f'_low is the closed-form per-lobe BRDF of prefilter/lobe_brdf.h (one widened
     /// base lobe per vMF lobe) instead of this quadrature (polar, azimuth and projected_area unused).
@@ -156,6 +183,11 @@ struct QuadratureOptions {
     /// ωo instead of its share of the projected area seen from ωo (lobe_brdf.h) — how models made
     /// before that were fitted (their manifest has no parameters.microfacet_view).
     bool area_microfacet = false;
+    /// --flow eq5 / visible: each node weighted by its absolute weight (c_k, or c_k <ω_k, ωo> /
+    /// <ω_g, ωo> with projected_area) instead of its share of the nodes facing ωo times Σ_k c_k ω_k.z
+    /// (the header's "View weights") — how models made before the shares were fitted (their
+    /// manifest has no parameters.quadrature_weights).
+    bool absolute_weights = false;
 };
 
 /// One node of the quadrature of D: micro-normal ω_k (its frame) and weight c_k.
@@ -188,7 +220,7 @@ public:
         const NdfNode *node = nullptr;
         Frame frame;               ///< node->frame
         Vec3 lo;                   ///< wo in the node's frame (lo.z > 0)
-        double total = 0.0;        ///< Σ(wo) = Σ_k weight(k) over the nodes visible from wo
+        double total = 0.0;        ///< Σ(wo): the sum of eval's weights over the nodes visible from wo
         double u_rescaled = 0.0;   ///< where u fell inside the node's interval, in [0, 1]
     };
     /// Chooses the node whose interval [Σ_{j<k} w_j, Σ_{j<=k} w_j) / Σ holds u ∈ [0, 1) (visible
@@ -243,10 +275,17 @@ public:
     const std::vector<NdfNode> &nodes() const { return m_nodes; }
     /// Bytes of node data: the nodes and pick_node's compact copy of them.
     size_t node_bytes() const { return m_nodes.size() * sizeof(NdfNode) + m_blocks.size() * sizeof(NodeBlock); }
-    /// Node k's share for the viewer wo (0 when ω_k faces away): the weights of eval's sum.
+    /// Node k's weight for the viewer wo (0 when ω_k faces away), the weight of sample()'s node
+    /// choice: eval's weights are these times view_scale(Σ_k node_weight(k, wo)).
     double node_weight(const NdfNode &k, const Vec3 &wo) const {
         const float z = k.frame.to_local(wo).z;
         return z > 0.f && wo.z > 0.f ? weight(k, z, wo.z) : 0.0;
+    }
+    /// The factor from node_weight to eval's weights, given their sum over the nodes facing wo:
+    /// Σ_k c_k ω_k.z / facing_total (the shares, see the header), 1 with absolute_weights or when
+    /// no node faces wo.
+    double view_scale(double facing_total) const {
+        return m_opt.absolute_weights || !(facing_total > 0.0) ? 1.0 : m_projected / facing_total;
     }
     /// Σ_k c_k: the quadrature of ∫_{H²} D dω (≈ area_ratio for a good fit).
     double total_weight() const { return m_total; }
@@ -254,7 +293,8 @@ public:
     double projected_area() const { return m_projected; }
 
 private:
-    /// The weight of node k for the viewer: c_k, times <ω_k, ωo> / <ω_g, ωo> with projected_area.
+    /// The weight of node k for the viewer before view_scale: c_k, times <ω_k, ωo> / <ω_g, ωo> with
+    /// projected_area.
     double weight(const NdfNode &k, float lo_z, float wo_z) const {
         return m_opt.projected_area ? k.weight * double(lo_z) / double(wo_z) : k.weight;
     }

@@ -115,7 +115,7 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
                                     {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
                                     {"flow_projected_area", o.flow_projected_area && !o.flow_lobes},
                                     {"flow", flow_name(model.quadrature)}, {"albedo", "patch_mean"}, {"lambert_view", "visible"},
-                                    {"microfacet_view", "visible"},
+                                    {"microfacet_view", "visible"}, {"quadrature_weights", "share"},
                                     {"lsq_w", kLsqW}};
     return model;
 }

@@ -269,7 +269,7 @@ struct ScalingEstimator::Task {
             while (q + 1 < vis.size() && cum + vw[q] <= target) cum += vw[q], ++q;
             const Frame &F = nodes[vis[q]].frame;
             const Vec3 lo = F.to_local(wo);
-            const float scale = float(total / J);
+            const float scale = float(total * fl_patch.view_scale(total) / J);  // eval's weights sum to that
             for (int b = 0; b < B; ++b) {
                 const Vec3 li = F.to_local(wi[size_t(b)]);
                 if (!(li.z > 0.f) || !(wi[size_t(b)].z > 0.f)) continue;
