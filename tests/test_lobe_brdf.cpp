@@ -3,7 +3,7 @@
 // their exact quadratures, χ² of the sampler against the pdf (conductor Beckmann and GGX, diffuse;
 // grazing viewers), the κ → ∞ limit (the base itself), the closed form against the dense eq. 5
 // quadrature for narrow and wide lobes (the difference is printed: the tables absorb it), white
-// energy, extremes, and the located errors of unsupported bases.
+// energy, extremes, eval_batch against eval, and the located errors of unsupported bases.
 #include <gtest/gtest.h>
 #include <cmath>
 #include <cstdio>
@@ -299,6 +299,40 @@ TEST(LobeBrdf, ExtremeInputsAreFinite) {
                     }
                 }
             }
+}
+
+TEST(LobeBrdf, BatchEvalIsEval) {
+    // eval_batch (the prefilter's next-event splat: the ωo side once per call) against eval one
+    // direction at a time, on two patches with different lobes (the batch must read the patch
+    // of ctx.uv), viewers from the pole to below the horizon, ωi over the sphere.
+    PCG32 rng(11, 12);
+    std::vector<Vec3> wi;
+    for (int k = 0; k < 300; ++k) {
+        const float z = 2.f * rng.next_float() - 1.f, phi = 2.f * meso::Pi * rng.next_float();
+        const float r = std::sqrt(std::max(0.f, 1.f - z * z));
+        wi.push_back(Vec3(r * std::cos(phi), r * std::sin(phi), z));
+    }
+    wi.push_back(dir_deg(89.99, 40.0));
+    wi.push_back(Vec3(0.f, 0.f, 1.f));
+    const PatchNdf tilted = make_ndf({{unit(0.6, -0.2, 0.7), 20.0, 0.7}, {unit(0.0, 0.0, 1.0), 300.0, 0.3}});
+    for (const char *b : {kBeckmann, kGgx, kDiffuse}) {
+        const auto j = nlohmann::json::parse(b);
+        const SvLobeBrdf f(make_lobe_base(make_material(b), j, "base"), {six_lobes(), tilted}, 2, 1);
+        for (float u : {0.25f, 0.75f}) {
+            ShadingContext ctx = kCtx;
+            ctx.uv = Vec2(u, 0.5f);
+            for (Vec3 wo : {Vec3(0.f, 0.f, 1.f), dir_deg(40.0, 30.0), dir_deg(75.0, 200.0), dir_deg(89.9, 300.0),
+                            dir_deg(100.0, 10.0)}) {
+                std::vector<Spectrum> out(wi.size());
+                f.eval_batch(ctx, wo, wi.data(), int(wi.size()), out.data());
+                for (size_t k = 0; k < wi.size(); ++k) {
+                    const Spectrum e = f.eval(ctx, wo, wi[k]);
+                    ASSERT_TRUE(out[k].r == e.r && out[k].g == e.g && out[k].b == e.b)
+                        << b << " u " << u << " wo.z " << wo.z << " wi " << k << ": " << out[k].g << " vs " << e.g;
+                }
+            }
+        }
+    }
 }
 
 TEST(LobeBrdf, UnsupportedBasesAreNamed) {

@@ -163,6 +163,51 @@ inline float hsum(__m128 v) {
     return _mm_cvtss_f32(v);
 }
 
+/// The ωo side of one block of four microfacet lobes: lo = μ_j·ωo, the lanes' weights c towards
+/// ωo (c_j, or its visible form; c [lo > 0] is the pdf's total) and Smith Λ(ωo) (lanes with lo <= 0
+/// give garbage, masked by wi_terms). eval_batch computes it once per ωo for all its ωi.
+struct WoTerms {
+    __m128 lo, c, lam_o;
+};
+// (Templates on the block type: SvLobeBrdf::LobeBlock is private to the class.)
+template <class Block>
+inline WoTerms wo_terms(const Block &B, bool ggx, bool visible, __m128 ox, __m128 oy, __m128 oz) {
+    const __m128 lo = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_load_ps(B.mx), ox), _mm_mul_ps(_mm_load_ps(B.my), oy)),
+                                 _mm_mul_ps(_mm_load_ps(B.mz), oz));
+    const __m128 c = visible ? visible_weights(B.c, B.crow, B.cfy, B.inv_cz, lo) : _mm_load_ps(B.c);
+    return {lo, c, lambda4(ggx, _mm_load_ps(B.alpha), _mm_load_ps(B.a2), lo)};
+}
+/// The ωi side of one block (ωi, half vector h): adds c D G / (4 μ_j·ωo) to sum and c D (μ_j·h) to
+/// psum over the lanes whose lobe faces ωo, ωi and h. Lanes that fail a condition are masked to 0
+/// after the fact, so the infinities and NaNs of their divisions never reach the sums.
+template <class Block>
+inline void wi_terms(const Block &B, const WoTerms &o, bool ggx, __m128 ix, __m128 iy, __m128 iz, __m128 hx,
+                     __m128 hy, __m128 hz, __m128 &sum, __m128 &psum) {
+    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f);
+    const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz);
+    const __m128 li = _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, ix), _mm_mul_ps(my, iy)), _mm_mul_ps(mz, iz));
+    const __m128 ch = _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, hx), _mm_mul_ps(my, hy)), _mm_mul_ps(mz, hz));
+    const __m128 c2 = _mm_mul_ps(ch, ch);
+    const __m128 ok = _mm_and_ps(_mm_and_ps(_mm_cmpgt_ps(o.lo, zero), _mm_cmpgt_ps(li, zero)),
+                                 _mm_and_ps(_mm_cmpgt_ps(ch, zero), _mm_cmpgt_ps(c2, _mm_set1_ps(1e-12f))));
+    if (_mm_movemask_ps(ok) == 0) return;
+    const __m128 a2 = _mm_load_ps(B.a2), dn = _mm_load_ps(B.d_norm);
+    __m128 D;
+    if (ggx) {
+        const __m128 d = _mm_add_ps(_mm_mul_ps(c2, _mm_sub_ps(a2, one)), one);
+        D = _mm_div_ps(dn, _mm_mul_ps(d, d));
+    } else {
+        const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
+        D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(_mm_mul_ps(_mm_sub_ps(zero, t2), _mm_load_ps(B.inv_a2)))),
+                       _mm_mul_ps(c2, c2));
+    }
+    D = _mm_and_ps(ok, D);
+    psum = _mm_add_ps(psum, _mm_mul_ps(_mm_mul_ps(o.c, D), ch));
+    const __m128 G = _mm_div_ps(one, _mm_add_ps(one, _mm_add_ps(o.lam_o, lambda4(ggx, _mm_load_ps(B.alpha), a2, li))));
+    const __m128 term = _mm_div_ps(_mm_mul_ps(_mm_mul_ps(o.c, D), G), _mm_mul_ps(_mm_set1_ps(4.f), o.lo));
+    sum = _mm_add_ps(sum, _mm_and_ps(ok, term));
+}
+
 /// The probe of make_lobe_base: wo and wi mirrored about z at cosine c (so h = z and ωi·h = c).
 void mirrored_pair(double c, Vec3 &wo, Vec3 &wi) {
     const float s = float(std::sqrt(std::max(0.0, 1.0 - c * c)));
@@ -383,56 +428,61 @@ Spectrum SvLobeBrdf::lambert(const ShadingContext &ctx, size_t patch) const {
     return m_base.material->eval(ctx, z, z);
 }
 
-Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
-    const Vec3 h = normalize(wo + wi);
-    const float dwh = dot(wo, h);
-    if (!(dwh > 0.f)) return Spectrum(0.f);
-    // Four lobes per step (SSE); lanes that fail a condition are masked to 0 after the fact, so
-    // the infinities and NaNs of their divisions never reach the sums.
-    const bool ggx = m_base.type == MicrofacetType::GGX;
-    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f);
-    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
-    const __m128 ix = _mm_set1_ps(wi.x), iy = _mm_set1_ps(wi.y), iz = _mm_set1_ps(wi.z);
-    const __m128 hx = _mm_set1_ps(h.x), hy = _mm_set1_ps(h.y), hz = _mm_set1_ps(h.z);
-    __m128 sum = zero, psum = zero, ptot = zero;
-    for (uint32_t b = m_first_block[patch]; b < m_first_block[patch + 1]; ++b) {
-        const LobeBlock &B = m_blocks[b];
-        const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz);
-        auto dot4 = [&](__m128 x, __m128 y, __m128 z) {
-            return _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, x), _mm_mul_ps(my, y)), _mm_mul_ps(mz, z));
-        };
-        const __m128 lo = dot4(ox, oy, oz), li = dot4(ix, iy, iz), ch = dot4(hx, hy, hz);
-        const __m128 faces = _mm_cmpgt_ps(lo, zero);
-        const __m128 c = m_visible ? visible_weights(B.c, B.crow, B.cfy, B.inv_cz, lo) : _mm_load_ps(B.c);
-        ptot = _mm_add_ps(ptot, _mm_and_ps(faces, c));
-        const __m128 c2 = _mm_mul_ps(ch, ch);
-        const __m128 ok = _mm_and_ps(_mm_and_ps(faces, _mm_cmpgt_ps(li, zero)),
-                                     _mm_and_ps(_mm_cmpgt_ps(ch, zero), _mm_cmpgt_ps(c2, _mm_set1_ps(1e-12f))));
-        if (_mm_movemask_ps(ok) == 0) continue;
-        const __m128 a2 = _mm_load_ps(B.a2), dn = _mm_load_ps(B.d_norm);
-        __m128 D;
-        if (ggx) {
-            const __m128 d = _mm_add_ps(_mm_mul_ps(c2, _mm_sub_ps(a2, one)), one);
-            D = _mm_div_ps(dn, _mm_mul_ps(d, d));
-        } else {
-            const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
-            D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(_mm_mul_ps(_mm_sub_ps(zero, t2), _mm_load_ps(B.inv_a2)))),
-                           _mm_mul_ps(c2, c2));
-        }
-        D = _mm_and_ps(ok, D);
-        psum = _mm_add_ps(psum, _mm_mul_ps(_mm_mul_ps(c, D), ch));
-        const __m128 al = _mm_load_ps(B.alpha);
-        const __m128 G = _mm_div_ps(one, _mm_add_ps(one, _mm_add_ps(lambda4(ggx, al, a2, lo), lambda4(ggx, al, a2, li))));
-        const __m128 term = _mm_div_ps(_mm_mul_ps(_mm_mul_ps(c, D), G), _mm_mul_ps(_mm_set1_ps(4.f), lo));
-        sum = _mm_add_ps(sum, _mm_and_ps(ok, term));
-    }
-    const float s = hsum(sum), ps = hsum(psum), pt = hsum(ptot);
+Spectrum SvLobeBrdf::microfacet_value(size_t patch, float s, float ps, float pt, float dwh, float cih,
+                                      float *pdf) const {
     if (pdf) *pdf = pt > 0.f && std::isfinite(ps) ? ps / (pt * 4.f * dwh) : 0.f;
     if (!(s > 0.f) || !std::isfinite(s)) return Spectrum(0.f);
     // The visible form: the facing lobes' shares of what is seen from ωo, times the NDF's total
     // projected area (Σ_j c_j, 1 for a normalised NDF), as in eval_pdf_lambert.
-    if (m_visible) return m_base.fresnel_at(dot(wi, h)) * (s * m_visible_scale[patch] / pt);
-    return m_base.fresnel_at(dot(wi, h)) * s;
+    if (m_visible) return m_base.fresnel_at(cih) * (s * m_visible_scale[patch] / pt);
+    return m_base.fresnel_at(cih) * s;
+}
+
+Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const {
+    const Vec3 h = normalize(wo + wi);
+    const float dwh = dot(wo, h);
+    if (!(dwh > 0.f)) return Spectrum(0.f);
+    // Four lobes per step (SSE): the ωo side of a block, then its ωi side (wo_terms, wi_terms).
+    const bool ggx = m_base.type == MicrofacetType::GGX;
+    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
+    const __m128 ix = _mm_set1_ps(wi.x), iy = _mm_set1_ps(wi.y), iz = _mm_set1_ps(wi.z);
+    const __m128 hx = _mm_set1_ps(h.x), hy = _mm_set1_ps(h.y), hz = _mm_set1_ps(h.z);
+    __m128 sum = _mm_setzero_ps(), psum = _mm_setzero_ps(), ptot = _mm_setzero_ps();
+    for (uint32_t b = m_first_block[patch]; b < m_first_block[patch + 1]; ++b) {
+        const WoTerms o = wo_terms(m_blocks[b], ggx, m_visible, ox, oy, oz);
+        ptot = _mm_add_ps(ptot, _mm_and_ps(_mm_cmpgt_ps(o.lo, _mm_setzero_ps()), o.c));
+        wi_terms(m_blocks[b], o, ggx, ix, iy, iz, hx, hy, hz, sum, psum);
+    }
+    return microfacet_value(patch, hsum(sum), hsum(psum), hsum(ptot), dwh, dot(wi, h), pdf);
+}
+
+void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const {
+    // eval_pdf_microfacet at every ωi with the ωo side of each block computed once: the same
+    // operations in the same order, so the same values.
+    thread_local std::vector<WoTerms> terms;
+    const uint32_t first = m_first_block[patch], last = m_first_block[patch + 1];
+    const bool ggx = m_base.type == MicrofacetType::GGX;
+    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
+    terms.clear();
+    __m128 ptot = _mm_setzero_ps();
+    for (uint32_t b = first; b < last; ++b) {
+        terms.push_back(wo_terms(m_blocks[b], ggx, m_visible, ox, oy, oz));
+        ptot = _mm_add_ps(ptot, _mm_and_ps(_mm_cmpgt_ps(terms.back().lo, _mm_setzero_ps()), terms.back().c));
+    }
+    const float pt = hsum(ptot);
+    for (int k = 0; k < n; ++k) {
+        out[k] = Spectrum(0.f);
+        if (!(wi[k].z > 0.f)) continue;
+        const Vec3 h = normalize(wo + wi[k]);
+        const float dwh = dot(wo, h);
+        if (!(dwh > 0.f)) continue;
+        const __m128 ix = _mm_set1_ps(wi[k].x), iy = _mm_set1_ps(wi[k].y), iz = _mm_set1_ps(wi[k].z);
+        const __m128 hx = _mm_set1_ps(h.x), hy = _mm_set1_ps(h.y), hz = _mm_set1_ps(h.z);
+        __m128 sum = _mm_setzero_ps(), psum = _mm_setzero_ps();
+        for (uint32_t b = first; b < last; ++b)
+            wi_terms(m_blocks[b], terms[b - first], ggx, ix, iy, iz, hx, hy, hz, sum, psum);
+        out[k] = microfacet_value(patch, hsum(sum), hsum(psum), pt, dwh, dot(wi[k], h), nullptr);
+    }
 }
 
 Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
@@ -593,7 +643,13 @@ std::string SvLobeBrdf::to_string() const {
 }
 
 void SvLobeBrdf::eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const {
-    for (int k = 0; k < n; ++k) out[k] = eval_pdf(ctx, wo, wi[k], nullptr);
+    const size_t patch = patch_index(ctx.uv);
+    if (!(wo.z > 0.f)) {
+        std::fill(out, out + n, Spectrum(0.f));
+        return;
+    }
+    if (m_base.kind == LobeBase::Kind::Microfacet) return eval_batch_microfacet(patch, wo, wi, n, out);
+    for (int k = 0; k < n; ++k) out[k] = eval_pdf_patch(ctx, patch, wo, wi[k], nullptr);
 }
 
 }  // namespace meso::prefilter

@@ -204,6 +204,11 @@ private:
     /// eval_pdf at patch `patch` (found once per sample).
     Spectrum eval_pdf_patch(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const;
     Spectrum eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec3 &wi, float *pdf) const;
+    /// eval_pdf_microfacet at n directions wi (wo.z > 0; 0 where wi[k].z <= 0), the ωo side computed once.
+    void eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
+    /// eval_pdf_microfacet's result from its sums (s: Σ c D G / 4 μ·ωo, ps: Σ c D μ·h, pt: Σ c over
+    /// the lobes facing ωo), dwh = ωo·h and cih = ωi·h.
+    Spectrum microfacet_value(size_t patch, float s, float ps, float pt, float dwh, float cih, float *pdf) const;
     size_t patch_index(Vec2 uv) const;
     Spectrum eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
                               float *pdf) const;

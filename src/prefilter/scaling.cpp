@@ -92,6 +92,9 @@ struct ScalingEstimator::Task {
     const bool cv;          ///< the control variate (scaling.h) is on
     PCG32 rng;              ///< the original's path continuations (lines and f'_low node sets have their own streams)
     std::vector<Vec3> wi;   ///< ωi of every bin for the current line (one random shift of the grid per line)
+    int drawn_k = -1;       ///< the line of sight whose directions wi and wo_k hold (start_line)
+    Vec3 wo_k;              ///< its ωo
+    PCG32 lr_k;             ///< its stream after the draw
     std::vector<Spectrum> fl;  ///< f'_low(ωi of every bin, ωo) of the current line
     std::vector<size_t> vis;   ///< f'_low's nodes facing ωo ...
     std::vector<double> vw;    ///< ... and their weights c_k
@@ -171,10 +174,18 @@ struct ScalingEstimator::Task {
         return true;
     }
     /// Line k of K on field hf: its directions (same on both fields) and first vertex in P.
+    /// Line k's directions are drawn once (into wo_k, wi) and reused by every field that traces
+    /// line k (the original and each level's h_low): drawn_k is the line they belong to, lr_k
+    /// its stream after the draw.
     bool start_line(const Heightfield &hf, const PatchRegion &R, int k, int K, bool macro, Vec3 &wo, Vertex &v,
                     size_t &lines) {
-        PCG32 lr = line_rng(k);
-        draw_directions(lr, wo);
+        if (drawn_k != k) {
+            lr_k = line_rng(k);
+            draw_directions(lr_k, wo_k);
+            drawn_k = k;
+        }
+        PCG32 lr = lr_k;
+        wo = wo_k;
         ++lines;
         return shoot(lr, hf, R, wo, k, K, macro, v);
     }
@@ -396,6 +407,7 @@ struct ScalingEstimator::Task {
                      mix_bits(round_seed ^ 0xcfULL));
             Vec3 wo;
             draw_directions(lr, wo);
+            drawn_k = -1;  // wi no longer holds a line of sight's directions
             Vertex v;
             ++cv_lines;
             if (shoot(lr, est.m_orig, R, wo, k, K, false, v)) {

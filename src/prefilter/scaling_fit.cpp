@@ -120,10 +120,20 @@ struct Rank1Factors {
 /// divide by every noisy, near-empty denominator (see scaling.h).
 void fit_rank1_channel(const BinPairMoments &m, int P, int c, double epsilon, Rank1Factors &f) {
     const size_t BB = m.BB;
-    std::vector<double> &T = f.T, &S = f.S;
+    // Channel c's denominators, contiguous by patch (den[p BB + j]), and the sums of the
+    // numerators that do not change between sweeps: over patches per bin pair (num_b) and over
+    // bin pairs per patch (num_p). Every sum runs in the same order as a direct loop over
+    // m.at(p, j, c) (p, then j ascending), so the factors do not depend on this layout.
+    std::vector<double> den(size_t(P) * BB), num_b(BB, 0.0), num_p(size_t(P), 0.0), d_b(BB);
     double dtot = 0, ntot = 0;
     for (int p = 0; p < P; ++p)
-        for (size_t j = 0; j < BB; ++j) dtot += m.den[m.at(p, j, c)], ntot += m.num[m.at(p, j, c)];
+        for (size_t j = 0; j < BB; ++j) {
+            const double n = m.num[m.at(p, j, c)], d = m.den[m.at(p, j, c)];
+            den[size_t(p) * BB + j] = d;
+            dtot += d, ntot += n;
+            num_b[j] += n, num_p[size_t(p)] += n;
+        }
+    std::vector<double> T(size_t(P), 1.0), S(BB, 1.0);
     // Regularisation (the ε of eq. 12, relative): a bin pair whose denominator is small
     // against eps_b is pulled towards the global ratio S_g = Σ num / Σ den, and S is
     // capped at the largest value of the bins whose denominator is reliable (≥ 10% of
@@ -137,33 +147,39 @@ void fit_rank1_channel(const BinPairMoments &m, int P, int c, double epsilon, Ra
     const double eps_p = 1e-9 * dtot / double(P) + 1e-300;
     f.S_global[c] = S_g, f.eps_bin[c] = eps_b;
     for (int it = 0; it < 30; ++it) {
+        std::fill(d_b.begin(), d_b.end(), 0.0);
+        for (int p = 0; p < P; ++p) {
+            const double t = T[size_t(p)], *dp = &den[size_t(p) * BB];
+            for (size_t j = 0; j < BB; ++j) d_b[j] += t * dp[j];
+        }
         double cap = 0;
         for (size_t j = 0; j < BB; ++j) {
-            double a = 0, d = 0;
-            for (int p = 0; p < P; ++p) a += m.num[m.at(p, j, c)], d += T[size_t(p) * 3 + c] * m.den[m.at(p, j, c)];
-            S[j * 3 + c] = (a + eps_b * S_g) / (d + eps_b);
-            if (d >= 0.1 * dtot / double(BB)) cap = std::max(cap, S[j * 3 + c]);
+            S[j] = (num_b[j] + eps_b * S_g) / (d_b[j] + eps_b);
+            if (d_b[j] >= 0.1 * dtot / double(BB)) cap = std::max(cap, S[j]);
         }
         if (cap > 0)
-            for (size_t j = 0; j < BB; ++j) S[j * 3 + c] = std::min(S[j * 3 + c], cap);
+            for (size_t j = 0; j < BB; ++j) S[j] = std::min(S[j], cap);
         f.S_cap[c] = cap;
         double change = 0;
         for (int p = 0; p < P; ++p) {
-            double a = 0, d = 0;
-            for (size_t j = 0; j < BB; ++j) a += m.num[m.at(p, j, c)], d += S[j * 3 + c] * m.den[m.at(p, j, c)];
-            const double t = (a + eps_p) / (d + eps_p);
-            change = std::max(change, std::abs(t / T[size_t(p) * 3 + c] - 1.0));
-            T[size_t(p) * 3 + c] = t;
+            double d = 0;
+            const double *dp = &den[size_t(p) * BB];
+            for (size_t j = 0; j < BB; ++j) d += S[j] * dp[j];
+            const double t = (num_p[size_t(p)] + eps_p) / (d + eps_p);
+            change = std::max(change, std::abs(t / T[size_t(p)] - 1.0));
+            T[size_t(p)] = t;
         }
         if (change < 1e-7) break;
     }
     double mean = 0;
-    for (int p = 0; p < P; ++p) mean += T[size_t(p) * 3 + c] / P;
+    for (int p = 0; p < P; ++p) mean += T[size_t(p)] / P;
     if (mean > 0) {
-        for (int p = 0; p < P; ++p) T[size_t(p) * 3 + c] /= mean;
-        for (size_t j = 0; j < BB; ++j) S[j * 3 + c] *= mean;
+        for (int p = 0; p < P; ++p) T[size_t(p)] /= mean;
+        for (size_t j = 0; j < BB; ++j) S[j] *= mean;
         f.T_mean[c] = mean;
     }
+    for (int p = 0; p < P; ++p) f.T[size_t(p) * 3 + c] = T[size_t(p)];
+    for (size_t j = 0; j < BB; ++j) f.S[j * 3 + c] = S[j];
 }
 
 /// T and S into the tables (M x M and N² x N² images, model.h's layout).
@@ -340,7 +356,7 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
         Rank1Factors f;
         f.T.assign(size_t(P) * 3, 1.0);
         f.S.assign(m.BB * 3, 1.0);
-        for (int c = 0; c < 3; ++c) fit_rank1_channel(m, P, c, m_opt.epsilon, f);
+        tbb::parallel_for(0, 3, [&](int c) { fit_rank1_channel(m, P, c, m_opt.epsilon, f); });  // channels apart
         write_tables(f, M, N, tab);
         standard_errors(m, f, m_count_orig, m_count_low, P, N, o);
         if (!per_bo) rank1_check(m, f, P, N, o);
