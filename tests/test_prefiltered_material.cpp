@@ -16,6 +16,7 @@
 #include <memory>
 #include <string>
 #include <vector>
+#include <array>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include "core/error.h"
@@ -99,6 +100,37 @@ TEST(PrefilteredModel, QuadratureWeightsAreRecorded) {
             continue;
         }
         EXPECT_EQ(PrefilteredModel::load(d).quadrature.absolute_weights, std::string(value) == "absolute") << value;
+    }
+}
+
+TEST(PrefilteredModel, FormChoicesAreRecordedAndBadValuesNamed) {
+    // The other form choices a manifest records (model.cpp, fitted_before): each key's value now,
+    // its value before (also the default, absent), and a bad value refused naming the key.
+    const fs::path root = fs::path(meso::test::scratch_dir("meso_prefiltered_test"));
+    const std::vector<std::array<const char *, 3>> choices = {
+        {"albedo", "patch_mean", "point"}, {"lambert_view", "visible", "cap_mass"}, {"microfacet_view", "visible", "area"}};
+    auto before_flag = [](const PrefilteredModel &m, const std::string &key) {
+        if (key == "albedo") return m.quadrature.point_albedo;
+        if (key == "lambert_view") return m.quadrature.cap_mass_lambert;
+        return m.quadrature.area_microfacet;
+    };
+    for (const auto &[key, now, before] : choices) {
+        for (const char *value : {now, before, "neither"}) {
+            PrefilteredModel m = tiny_model().model;
+            m.manifest["parameters"][key] = value;
+            const std::string d = (root / (std::string("model_") + key + "_" + value)).string();
+            m.save(d);
+            if (std::string(value) == "neither") {
+                try {
+                    PrefilteredModel::load(d);
+                    ADD_FAILURE() << "a bad " << key << " was accepted";
+                } catch (const MesoError &e) {
+                    EXPECT_NE(std::string(e.what()).find(std::string("parameters.") + key), std::string::npos) << e.what();
+                }
+                continue;
+            }
+            EXPECT_EQ(before_flag(PrefilteredModel::load(d), key), std::string(value) == before) << key << " " << value;
+        }
     }
 }
 

@@ -159,6 +159,17 @@ Image read_checked(const fs::path &p, int w, int h, int c, const std::string &wh
     return img;
 }
 
+/// parameters.`key`, one of two values: `now` (what meso prefilter writes) or `before` (the
+/// default: models made before the key existed keep shading the way their tables were fitted).
+/// True for `before`; anything else is an error naming the key and both values.
+bool fitted_before(const nlohmann::json &par, const char *key, const char *now, const char *before,
+                   const std::string &where) {
+    const std::string v = par.value(key, std::string(before));
+    if (v != now && v != before)
+        throw MesoError(fmt::format("{}: parameters.{}: expected \"{}\" or \"{}\", got \"{}\"", where, key, now, before, v));
+    return v == before;
+}
+
 }  // namespace
 
 PrefilteredModel PrefilteredModel::load(const std::string &dir) {
@@ -207,32 +218,15 @@ PrefilteredModel PrefilteredModel::load(const std::string &dir) {
                                     where, flow));
     m.quadrature.lobes = flow == "lobes";
     m.quadrature.projected_area = flow == "visible";
-    // parameters.albedo (absent in models made before the lobes form averaged a diffuse base's
-    // reflectance over the patch: their tables were fitted to the value at the point).
-    const std::string albedo = par.value("albedo", std::string("point"));
-    if (albedo != "point" && albedo != "patch_mean")
-        throw MesoError(fmt::format("{}: parameters.albedo: expected \"patch_mean\" or \"point\", got \"{}\"", where,
-                                    albedo));
-    m.quadrature.point_albedo = albedo == "point";
-    // parameters.lambert_view (absent in models made before the visible form of the lobes' view weight).
-    const std::string view = par.value("lambert_view", std::string("cap_mass"));
-    if (view != "cap_mass" && view != "visible")
-        throw MesoError(fmt::format("{}: parameters.lambert_view: expected \"visible\" or \"cap_mass\", got \"{}\"",
-                                    where, view));
-    m.quadrature.cap_mass_lambert = view == "cap_mass";
-    // parameters.microfacet_view (absent in models made before the visible form of microfacet lobes).
-    const std::string mview = par.value("microfacet_view", std::string("area"));
-    if (mview != "area" && mview != "visible")
-        throw MesoError(fmt::format("{}: parameters.microfacet_view: expected \"visible\" or \"area\", got \"{}\"",
-                                    where, mview));
-    m.quadrature.area_microfacet = mview == "area";
-    // parameters.quadrature_weights (absent in models made before the eq5 / visible quadrature
-    // weighted its nodes by their shares of the facing nodes' weight).
-    const std::string qw = par.value("quadrature_weights", std::string("absolute"));
-    if (qw != "absolute" && qw != "share")
-        throw MesoError(fmt::format("{}: parameters.quadrature_weights: expected \"share\" or \"absolute\", got \"{}\"",
-                                    where, qw));
-    m.quadrature.absolute_weights = qw == "absolute";
+    // Form choices recorded by later versions (fitted_before: absent in older models).
+    // albedo: the lobes form's diffuse base reflectance averaged over the patch (before: at the point).
+    m.quadrature.point_albedo = fitted_before(par, "albedo", "patch_mean", "point", where);
+    // lambert_view: the visible form of the Lambertian lobes' view weight.
+    m.quadrature.cap_mass_lambert = fitted_before(par, "lambert_view", "visible", "cap_mass", where);
+    // microfacet_view: microfacet lobes weighted by their visible share (before: by area).
+    m.quadrature.area_microfacet = fitted_before(par, "microfacet_view", "visible", "area", where);
+    // quadrature_weights: eq5 / visible nodes weighted by their share of the facing nodes' weight.
+    m.quadrature.absolute_weights = fitted_before(par, "quadrature_weights", "share", "absolute", where);
     if (m.map_width < 1 || m.map_height < 1 || !(m.tile_size > 0) || m.lobes < 1 || m.lobes > 64)
         throw MesoError(fmt::format("{}: invalid map size, tile_size or lobes", where));
     for (const auto &lj : need(j, "levels", where)) {
