@@ -26,9 +26,9 @@
 // sampled R (SVD) against both this fit and eq. 22-24.
 //
 // Grazing angles. Bins are equidistant in θ (prefilter/model.h): the outer ring is the last
-// 90°/N (84°..90° at N = 15), not the 60°..90° of a cosine-weighted lift, and its cells are
-// estimated like all others (the median error of the outer ring is reported separately). No
-// direction is excluded.
+// 2 x 90°/N (78°..90° at N = 15, centre 84°), not the 60°..90° of a cosine-weighted lift, and
+// its cells are estimated like all others (the median error of the outer ring is reported
+// separately). No direction is excluded.
 //
 // Splatting (the cost lever). A line of sight along -ωo and the path it starts do not depend
 // on ωi, so every path vertex sends next-event terms towards ALL N² ωi bins: one traced path
