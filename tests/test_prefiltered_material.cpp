@@ -279,6 +279,32 @@ TEST(PrefilteredTables, SAtBinCentresIsTheBinAndContinuous) {
     expect_spectrum_near(t.eval_T(Vec2(0.f, 0.f)), t.eval_T(Vec2(1.f, 1.f)), 1e-6, "T periodic");
 }
 
+TEST(PrefilteredTables, SIsExtrapolatedOverTheOuterHalfBins) {
+    // S linear in ωi's square x coordinate: exact everywhere, also between the outer bin centres
+    // and the horizon (the square's border), where a clamp held the last centre's value.
+    const int N = 7;
+    ScalingTables t;
+    t.M = 1, t.N = N;
+    t.T = Image(1, 1, 3);
+    t.T.set_rgb(0, 0, Spectrum(1.f));
+    t.S = Image(N * N, N * N, 3);
+    const float a = 0.3f, b = 0.1f;  // S = a + b * (ix - 3) over the bins' x index ix
+    for (int bi = 0; bi < N * N; ++bi)
+        for (int bo = 0; bo < N * N; ++bo) t.set_S_bin(bi, bo, Spectrum(a + b * float(bi % N - 3)));
+    const Vec3 wo(0.f, 0.f, 1.f);
+    for (float u : {0.f, 0.03f, 0.5f / N, 0.3f, 0.5f, 0.9f, 1.f - 0.5f / N, 0.98f, 1.f}) {
+        const Vec3 wi = square_to_hemisphere(Vec2(u, 0.5f));
+        const float x = hemisphere_to_square(wi).x * N - 0.5f;  // continuous bin coordinate
+        const float expect = std::max(0.f, a + b * (x - 3.f));
+        EXPECT_NEAR(t.eval_S(wi, wo).g, expect, 2e-5f) << "u = " << u;
+    }
+    // at the +x horizon: half a bin beyond the last centre, a + b (6.5 - 3) = 0.65, not the clamp's 0.6
+    EXPECT_NEAR(t.eval_S(Vec3(1.f, 0.f, 0.f), wo).g, a + b * 3.5f, 2e-5f);
+    // extrapolation below 0 is clamped (the -x horizon: a + b (-0.5 - 3) = -0.05)
+    EXPECT_EQ(t.eval_S(Vec3(-1.f, 0.f, 0.f), wo).g, 0.f);
+    EXPECT_NEAR(t.eval_S(square_to_hemisphere(Vec2(0.5f / N, 0.5f)), wo).g, 0.f, 2e-5f);
+}
+
 TEST(PrefilteredTables, ConcentricInverse) {
     PCG32 rng(5);
     std::vector<Vec2> pts;

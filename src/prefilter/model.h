@@ -31,7 +31,8 @@
 // bins of their own (see prefilter/scaling.h on grazing angles).
 // Bin (bx, by) covers [bx/N, (bx+1)/N) x [by/N, (by+1)/N) of the square, index b = by N + bx;
 // the lookup is bilinear in (ωi's square coordinates) x bilinear in (ωo's), between bin
-// centres, clamped at the square's border (quadrilinear overall).
+// centres, linearly extrapolated over the outer half bins up to the square's border (the
+// horizon) and clamped at 0 (quadrilinear overall; table_lookup.cpp, axis_lerp).
 #pragma once
 #include <memory>
 #include <string>

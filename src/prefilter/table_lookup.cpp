@@ -73,10 +73,18 @@ inline Spectrum texel(const Image &im, int x, int y) {
 }
 
 /// Bin-centre interpolation along one axis of N bins: lower index and weight of the upper.
+/// Between the outer bin centres and the square's border (the horizon, half a bin) the line
+/// through the last two centres is EXTRAPOLATED (t in [-0.5, 0) or (1, 1.5]) instead of
+/// clamped: S changes fastest there (shadowing and masking), and a clamp held the last centre's
+/// value to the horizon (scripts/experiments/grazing_sweep; model.h "Angular bins").
 inline void axis_lerp(float s, int N, int &i0, int &i1, float &t) {
-    const float x = std::clamp(s * float(N) - 0.5f, 0.f, float(N - 1));
-    i0 = std::min(int(x), N - 1);
-    i1 = std::min(i0 + 1, N - 1);
+    if (N < 2) {
+        i0 = i1 = 0, t = 0.f;
+        return;
+    }
+    const float x = std::clamp(s * float(N) - 0.5f, -0.5f, float(N) - 0.5f);
+    i0 = std::clamp(int(std::floor(x)), 0, N - 2);
+    i1 = i0 + 1;
     t = x - float(i0);
 }
 
@@ -121,7 +129,7 @@ Spectrum ScalingTables::eval_S(Vec3 wi, Vec3 wo) const {
                 for (int c = 0; c < 2; ++c)
                     for (int d = 0; d < 2; ++d)
                         s += texel(S, ox[a] * N + ix[c], oy[b] * N + iy[d]) * (wox[a] * woy[b] * wix[c] * wiy[d]);
-        return s;
+        return Spectrum(std::max(s.r, 0.f), std::max(s.g, 0.f), std::max(s.b, 0.f));  // extrapolated: >= 0
     }
     // The 16 texels of the quadrilinear blend straight from the RGB data, without branches on
     // zero weights (the tables are finite, checked at load: a zero weight adds exactly 0).
@@ -138,7 +146,7 @@ Spectrum ScalingTables::eval_S(Vec3 wi, Vec3 wo) const {
                     r += p[0] * w, g += p[1] * w, b += p[2] * w;
                 }
         }
-    return Spectrum(r, g, b);
+    return Spectrum(std::max(r, 0.f), std::max(g, 0.f), std::max(b, 0.f));  // extrapolated past the centres: >= 0
 }
 
 }  // namespace meso::prefilter
