@@ -335,6 +335,58 @@ TEST(LobeBrdf, BatchEvalIsEval) {
     }
 }
 
+TEST(LobeBrdf, ViewerSideCacheNeverServesAnotherModelOrPatch) {
+    // The ωo side of a microfacet pass is kept per thread for the last (model, patch, ωo)
+    // (lobe_brdf.cpp, WoCache). Interleaving two models with the same layout but different lobes,
+    // two patches and a repeated ωo, every eval, pdf and sample must be what a model evaluated
+    // alone (a fresh copy made after the others, so nothing it asks can be cached) gives.
+    const PatchNdf tilted = make_ndf({{unit(0.6, -0.2, 0.7), 20.0, 0.7}, {unit(0.0, 0.0, 1.0), 300.0, 0.3}});
+    const PatchNdf other = make_ndf({{unit(-0.5, 0.3, 0.8), 8.0, 0.4}, {unit(0.1, 0.1, 1.0), 60.0, 0.6}});
+    for (const char *b : {kBeckmann, kGgx}) {
+        const auto j = nlohmann::json::parse(b);
+        auto make = [&](const PatchNdf &second) {
+            return std::make_unique<SvLobeBrdf>(make_lobe_base(make_material(b), j, "base"),
+                                                std::vector<PatchNdf>{six_lobes(), second}, 2, 1);
+        };
+        const auto f1 = make(tilted), f2 = make(other);
+        const Vec3 wo = dir_deg(50.0, 70.0), wi = dir_deg(35.0, 250.0);
+        struct Ask {
+            const SvLobeBrdf *f;
+            float u;
+        };
+        std::vector<Spectrum> got;
+        std::vector<float> pdfs;
+        std::vector<Vec3> dirs;
+        for (const Ask a : {Ask{f1.get(), 0.75f}, Ask{f2.get(), 0.75f}, Ask{f1.get(), 0.25f}, Ask{f1.get(), 0.75f},
+                            Ask{f2.get(), 0.25f}, Ask{f2.get(), 0.75f}}) {
+            ShadingContext ctx = kCtx;
+            ctx.uv = Vec2(a.u, 0.5f);
+            float p = 0.f;
+            got.push_back(a.f->eval_pdf(ctx, wo, wi, &p));
+            pdfs.push_back(p);
+            BSDFSample bs;
+            dirs.push_back(a.f->sample(ctx, wo, 0.6f, Vec2(0.3f, 0.8f), bs) ? bs.wi : Vec3(0.f, 0.f, 0.f));
+        }
+        size_t k = 0;
+        for (const Ask a : {Ask{f1.get(), 0.75f}, Ask{f2.get(), 0.75f}, Ask{f1.get(), 0.25f}, Ask{f1.get(), 0.75f},
+                            Ask{f2.get(), 0.25f}, Ask{f2.get(), 0.75f}}) {
+            const auto fresh = make(a.f == f1.get() ? tilted : other);
+            ShadingContext ctx = kCtx;
+            ctx.uv = Vec2(a.u, 0.5f);
+            float p = 0.f;
+            const Spectrum e = fresh->eval_pdf(ctx, wo, wi, &p);
+            BSDFSample bs;
+            const Vec3 d = fresh->sample(ctx, wo, 0.6f, Vec2(0.3f, 0.8f), bs) ? bs.wi : Vec3(0.f, 0.f, 0.f);
+            EXPECT_TRUE(e.r == got[k].r && e.g == got[k].g && e.b == got[k].b && p == pdfs[k])
+                << b << " ask " << k << ": " << got[k].g << " vs " << e.g << ", pdf " << pdfs[k] << " vs " << p;
+            EXPECT_TRUE(d.x == dirs[k].x && d.y == dirs[k].y && d.z == dirs[k].z) << b << " ask " << k;
+            ++k;
+        }
+        // The two models' second patches differ, so a cache keyed by the layout alone would fail above.
+        EXPECT_NE(got[1].g, got[3].g) << b;
+    }
+}
+
 TEST(LobeBrdf, UnsupportedBasesAreNamed) {
     auto err = [](const char *json) {
         try {

@@ -1,7 +1,9 @@
 // The closed-form per-lobe f'_low ("--flow lobes"); the model and its derivation are in lobe_brdf.h.
 #include "prefilter/lobe_brdf.h"
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstring>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include <smmintrin.h>
@@ -208,6 +210,52 @@ inline void wi_terms(const Block &B, const WoTerms &o, bool ggx, __m128 ix, __m1
     sum = _mm_add_ps(sum, _mm_and_ps(ok, term));
 }
 
+/// The ωo side of one patch's blocks, kept per thread for the last (model, patch, ωo) asked: a
+/// path vertex asks eval_pdf (next-event), sample (the lobe choice, then eval_pdf at the sampled
+/// direction) and sometimes pdf with the same ωo, and this side (the visible weights' table
+/// lookups and Smith Λ(ωo)) is most of a pass. Keyed by the model's serial number (not its
+/// address, which a later model may reuse) and ωo's bits: a hit returns exactly what a recompute
+/// would. Patches of more than kMaxBlocks blocks are not cached.
+struct WoCache {
+    static constexpr uint32_t kMaxBlocks = 16;
+    uint64_t serial = 0;  ///< 0: empty (serials start at 1)
+    uint32_t patch = 0, n = 0;
+    float wx = 0.f, wy = 0.f, wz = 0.f, pt = 0.f;
+    WoTerms terms[kMaxBlocks];
+    bool holds(uint64_t s, uint32_t p, const Vec3 &w) const {
+        return serial == s && patch == p && std::memcmp(&wx, &w.x, sizeof(float)) == 0 &&
+               std::memcmp(&wy, &w.y, sizeof(float)) == 0 && std::memcmp(&wz, &w.z, sizeof(float)) == 0;
+    }
+};
+thread_local WoCache tl_wo_cache;
+std::atomic<uint64_t> g_lobe_serial{0};
+
+/// The ωo side of blocks B[0 .. nb) of patch `patch` of model `serial` (from the thread's cache
+/// when it holds them) and pt, the sum of the weights towards ωo (eval_pdf's pdf total).
+template <class Block>
+const WoTerms *wo_side(const Block *B, uint32_t nb, uint64_t serial, uint32_t patch, bool ggx, bool visible,
+                       const Vec3 &wo, float &pt) {
+    WoCache &c = tl_wo_cache;
+    const bool fits = nb <= WoCache::kMaxBlocks;
+    if (fits && c.holds(serial, patch, wo)) {
+        pt = c.pt;
+        return c.terms;
+    }
+    thread_local std::vector<WoTerms> big;
+    WoTerms *t = c.terms;
+    if (!fits) big.resize(nb), t = big.data();
+    c.serial = 0;  // invalid while being filled
+    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
+    __m128 ptot = _mm_setzero_ps();
+    for (uint32_t b = 0; b < nb; ++b) {
+        t[b] = wo_terms(B[b], ggx, visible, ox, oy, oz);
+        ptot = _mm_add_ps(ptot, _mm_and_ps(_mm_cmpgt_ps(t[b].lo, _mm_setzero_ps()), t[b].c));
+    }
+    pt = hsum(ptot);
+    if (fits) c.serial = serial, c.patch = patch, c.wx = wo.x, c.wy = wo.y, c.wz = wo.z, c.pt = pt, c.n = nb;
+    return t;
+}
+
 /// The probe of make_lobe_base: wo and wi mirrored about z at cosine c (so h = z and ωi·h = c).
 void mirrored_pair(double c, Vec3 &wo, Vec3 &wi) {
     const float s = float(std::sqrt(std::max(0.0, 1.0 - c * c)));
@@ -336,7 +384,7 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
                        bool visible_lambert, bool visible_microfacet)
     : m_base(std::move(base)),
       m_visible(m_base.kind == LobeBase::Kind::Lambertian ? visible_lambert : visible_microfacet), m_w(width),
-      m_h(height) {
+      m_h(height), m_serial(++g_lobe_serial) {
     if (width < 1 || height < 1 || ndf.size() != size_t(width) * size_t(height))
         throw MesoError(fmt::format("lobes f'_low: {} patch NDFs for a {}x{} grid", ndf.size(), width, height));
     m_first.reserve(ndf.size() + 1);
@@ -442,34 +490,25 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
     const Vec3 h = normalize(wo + wi);
     const float dwh = dot(wo, h);
     if (!(dwh > 0.f)) return Spectrum(0.f);
-    // Four lobes per step (SSE): the ωo side of a block, then its ωi side (wo_terms, wi_terms).
+    // Four lobes per step (SSE): the ωo side of every block (wo_side, cached per thread), then
+    // their ωi side (wi_terms).
     const bool ggx = m_base.type == MicrofacetType::GGX;
-    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
+    const uint32_t first = m_first_block[patch], nb = m_first_block[patch + 1] - first;
+    float pt = 0.f;
+    const WoTerms *t = wo_side(m_blocks.data() + first, nb, m_serial, uint32_t(patch), ggx, m_visible, wo, pt);
     const __m128 ix = _mm_set1_ps(wi.x), iy = _mm_set1_ps(wi.y), iz = _mm_set1_ps(wi.z);
     const __m128 hx = _mm_set1_ps(h.x), hy = _mm_set1_ps(h.y), hz = _mm_set1_ps(h.z);
-    __m128 sum = _mm_setzero_ps(), psum = _mm_setzero_ps(), ptot = _mm_setzero_ps();
-    for (uint32_t b = m_first_block[patch]; b < m_first_block[patch + 1]; ++b) {
-        const WoTerms o = wo_terms(m_blocks[b], ggx, m_visible, ox, oy, oz);
-        ptot = _mm_add_ps(ptot, _mm_and_ps(_mm_cmpgt_ps(o.lo, _mm_setzero_ps()), o.c));
-        wi_terms(m_blocks[b], o, ggx, ix, iy, iz, hx, hy, hz, sum, psum);
-    }
-    return microfacet_value(patch, hsum(sum), hsum(psum), hsum(ptot), dwh, dot(wi, h), pdf);
+    __m128 sum = _mm_setzero_ps(), psum = _mm_setzero_ps();
+    for (uint32_t b = 0; b < nb; ++b) wi_terms(m_blocks[first + b], t[b], ggx, ix, iy, iz, hx, hy, hz, sum, psum);
+    return microfacet_value(patch, hsum(sum), hsum(psum), pt, dwh, dot(wi, h), pdf);
 }
 
 void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const {
-    // eval_pdf_microfacet at every ωi with the ωo side of each block computed once: the same
-    // operations in the same order, so the same values.
-    thread_local std::vector<WoTerms> terms;
-    const uint32_t first = m_first_block[patch], last = m_first_block[patch + 1];
+    // eval_pdf_microfacet at every ωi: the same operations in the same order, so the same values.
     const bool ggx = m_base.type == MicrofacetType::GGX;
-    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
-    terms.clear();
-    __m128 ptot = _mm_setzero_ps();
-    for (uint32_t b = first; b < last; ++b) {
-        terms.push_back(wo_terms(m_blocks[b], ggx, m_visible, ox, oy, oz));
-        ptot = _mm_add_ps(ptot, _mm_and_ps(_mm_cmpgt_ps(terms.back().lo, _mm_setzero_ps()), terms.back().c));
-    }
-    const float pt = hsum(ptot);
+    const uint32_t first = m_first_block[patch], nb = m_first_block[patch + 1] - first;
+    float pt = 0.f;
+    const WoTerms *t = wo_side(m_blocks.data() + first, nb, m_serial, uint32_t(patch), ggx, m_visible, wo, pt);
     for (int k = 0; k < n; ++k) {
         out[k] = Spectrum(0.f);
         if (!(wi[k].z > 0.f)) continue;
@@ -479,8 +518,7 @@ void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 
         const __m128 ix = _mm_set1_ps(wi[k].x), iy = _mm_set1_ps(wi[k].y), iz = _mm_set1_ps(wi[k].z);
         const __m128 hx = _mm_set1_ps(h.x), hy = _mm_set1_ps(h.y), hz = _mm_set1_ps(h.z);
         __m128 sum = _mm_setzero_ps(), psum = _mm_setzero_ps();
-        for (uint32_t b = first; b < last; ++b)
-            wi_terms(m_blocks[b], terms[b - first], ggx, ix, iy, iz, hx, hy, hz, sum, psum);
+        for (uint32_t b = 0; b < nb; ++b) wi_terms(m_blocks[first + b], t[b], ggx, ix, iy, iz, hx, hy, hz, sum, psum);
         out[k] = microfacet_value(patch, hsum(sum), hsum(psum), pt, dwh, dot(wi[k], h), nullptr);
     }
 }
@@ -545,20 +583,18 @@ const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const V
 }
 
 bool SvLobeBrdf::choose_block(size_t patch, const Vec3 &wo, float u_lobe, uint32_t &bo, int &qo) const {
-    const uint32_t first = m_first_block[patch], last = m_first_block[patch + 1];
-    const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
     // Block b's lanes' weights towards ωo, those eval_pdf_microfacet's pdf divides by: c_j [μ_j·ωo > 0],
-    // or in the visible form c_j C(μ_j·ωo) / C(μ_j,z) (visible_weights; padding lanes have c = 0).
+    // or in the visible form c_j C(μ_j·ωo) / C(μ_j,z) (the cached ωo side; padding lanes have c = 0).
+    const bool ggx = m_base.type == MicrofacetType::GGX;
+    const uint32_t first = m_first_block[patch], nb = m_first_block[patch + 1] - first;
+    float pt = 0.f;
+    const WoTerms *t = wo_side(m_blocks.data() + first, nb, m_serial, uint32_t(patch), ggx, m_visible, wo, pt);
     auto weights = [&](uint32_t b, float *w) {
-        const LobeBlock &B = m_blocks[b];
-        const __m128 t = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_load_ps(B.mx), ox), _mm_mul_ps(_mm_load_ps(B.my), oy)),
-                                    _mm_mul_ps(_mm_load_ps(B.mz), oz));
-        _mm_storeu_ps(w, m_visible ? visible_weights(B.c, B.crow, B.cfy, B.inv_cz, t)
-                                   : _mm_and_ps(_mm_cmpgt_ps(t, _mm_setzero_ps()), _mm_load_ps(B.c)));
+        _mm_storeu_ps(w, _mm_and_ps(_mm_cmpgt_ps(t[b].lo, _mm_setzero_ps()), t[b].c));
     };
     // Lobe by lobe in the patch's order (a padding lane adds +0), as choose does for Lambertian lobes.
     float total = 0.f;
-    for (uint32_t b = first; b < last; ++b) {
+    for (uint32_t b = 0; b < nb; ++b) {
         float w[4];
         weights(b, w);
         for (int q = 0; q < 4; ++q) total += w[q];
@@ -566,12 +602,12 @@ bool SvLobeBrdf::choose_block(size_t patch, const Vec3 &wo, float u_lobe, uint32
     if (!(total > 0.f)) return false;
     float target = u_lobe * total;
     bool found = false;
-    for (uint32_t b = first; b < last; ++b) {
+    for (uint32_t b = 0; b < nb; ++b) {
         float w[4];
         weights(b, w);
         for (int q = 0; q < 4; ++q) {
             if (!(w[q] > 0.f)) continue;
-            bo = b, qo = q, found = true;  // also the round-off fallback: the last lobe with weight
+            bo = first + b, qo = q, found = true;  // also the round-off fallback: the last lobe with weight
             if (target < w[q]) return true;
             target -= w[q];
         }

@@ -242,6 +242,7 @@ private:
     bool m_visible = false;              ///< lobes weighted by their projected area towards ωo
     std::vector<float> m_visible_scale;  ///< visible form: patch k's Σ_j c_j
     int m_w = 0, m_h = 0;
+    uint64_t m_serial = 0;  ///< unique per model (starts at 1): the key of the per-thread ωo cache (lobe_brdf.cpp)
 };
 
 }  // namespace meso::prefilter
