@@ -32,7 +32,7 @@ namespace {
 /// The flags as given (strings where they are parsed or checked in validate()).
 struct PrefilterFlags {
     prefilter::PipelineOptions pipeline;
-    std::string scales = "8,64", interreflections = "on", flow = "auto";
+    std::string scales = "8,64", interreflections = "on", flow = "auto", reciprocity = "off";
     std::vector<std::string> params;
     int size = 0;
     int64_t gen_seed = -1;
@@ -81,6 +81,7 @@ prefilter::PipelineOptions validate(const PrefilterFlags &f) {
     if (o.map.empty() == o.generator.empty())
         throw MesoError("prefilter: give exactly one of --map FILE and --generator KIND");
     o.interreflections = parse_choice("--interreflections", f.interreflections, {"on", "off"}) == 0;
+    o.reciprocity = parse_choice("--reciprocity", f.reciprocity, {"off", "check", "on"});
     const int flow = parse_choice("--flow", f.flow, {"visible", "eq5", "lobes", "auto"});
     o.flow_projected_area = flow == 0;
     o.flow_lobes = flow == 2;
@@ -150,6 +151,12 @@ SubcommandRegistrar reg_prefilter{
                         "interreflections or h_low; the lines of sight then trace only the difference (0: none)")
              ->capture_default_str()
              ->check(CLI::Range(0, 1 << 20));
+         app.add_option("--reciprocity", f->reciprocity,
+                        "the effective BRDF's reciprocity (paper 004 eq. 25): every line of sight also estimates the "
+                        "transposed bin pair; check = report how the two estimates agree (per ring), on = average them "
+                        "into S (less variance; not the default: they disagree at grazing wo with M > 1, "
+                        "docs/bench.md), off; ignored with --cv-lines")
+             ->capture_default_str();
          app.add_option("--directions", o->jitter_directions,
                         "where a line's wo and wi sit in their S bins: jitter (uniform in the bin: the bin's average) "
                         "or centres (the points S's lookup interpolates between; can spike where f'_low vanishes)")

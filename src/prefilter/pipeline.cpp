@@ -109,6 +109,7 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
     model.manifest["parameters"] = {{"scales", o.scales}, {"M", o.M}, {"N", o.N}, {"lobes", o.lobes},
                                     {"interreflections", o.interreflections}, {"paths_per_bin", o.paths},
                                     {"low_paths_per_bin", o.low_paths}, {"low_nodes", o.low_nodes}, {"cv_lines", o.cv_lines},
+                                    {"reciprocity", o.cv_lines > 0 || o.reciprocity == 0 ? "off" : o.reciprocity == 1 ? "check" : "on"},
                                     {"directions", o.jitter_directions ? "jitter" : "centres"}, {"target_error", o.target_error},
                                     {"max_rounds", o.max_rounds}, {"max_seconds", o.max_seconds}, {"epsilon", o.epsilon}, {"seed", o.seed},
                                     {"ndf_samples_per_cell", o.samples_per_cell},
@@ -175,6 +176,8 @@ ScalingOptions scaling_options(const PipelineOptions &o, uint64_t seed) {
     sopt.low_paths = o.low_paths;
     sopt.low_nodes = o.low_nodes;
     sopt.cv_lines = o.cv_lines;
+    sopt.reciprocity = o.reciprocity == 2;
+    sopt.check_reciprocity = o.reciprocity == 1;
     sopt.jitter_directions = o.jitter_directions;
     sopt.epsilon = o.epsilon;
     sopt.target_error = o.target_error;
@@ -243,6 +246,11 @@ nlohmann::json stats_json(const ScalingStats &s, bool ir) {
                         {"T_rel_std_error_median", s.T_rel_se_median},
                         {"tasks_traced", s.tasks_traced},
                         {"estimator_bytes", s.estimator_bytes},
+                        {"reciprocity_check", s.reciprocity_check[0] > 0 || s.reciprocity_check[1] > 0
+                                                  ? nlohmann::json{{"inner", s.reciprocity_check[0]},
+                                                                   {"wi_outer_ring", s.reciprocity_check[1]},
+                                                                   {"wo_outer_ring", s.reciprocity_check[2]}}
+                                                  : nlohmann::json(nullptr)},
                         {"rank1", {{"energy_sigma1_sq", s.rank1_energy},
                                    {"svd_rel_error", s.rank1_svd_rel_error},
                                    {"TS_rel_error", s.ts_rel_error}, {"paper_eq22_24_rel_error", s.paper_ts_rel_error},
@@ -305,6 +313,11 @@ void finish_level(const PipelineOptions &o, LevelWork &w, const ScalingStats &st
                  ir ? st.S_ir_rel_se_median_paper_counts : st.S_rel_se_median_paper_counts, ir ? " (ir)" : "",
                  ir ? st.rank1_energy_ir : st.rank1_energy, ir ? st.ts_rel_error_ir : st.ts_rel_error,
                  ir ? st.rank1_svd_rel_error_ir : st.rank1_svd_rel_error);
+    if (dist::rank() == 0 && (st.reciprocity_check[0] > 0 || st.reciprocity_check[1] > 0))
+        std::fprintf(stderr,
+                     "  x%d: reciprocity check (single bounce; transposed / direct estimate, 1 = reciprocal): inner "
+                     "%.4f, wi in the outer ring %.4f, wo in it %.4f\n",
+                     F, st.reciprocity_check[0], st.reciprocity_check[1], st.reciprocity_check[2]);
 }
 
 /// The level's per-cell model error and the per-sample variance it removes (level_error.h), for

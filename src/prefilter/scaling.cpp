@@ -67,8 +67,17 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
         for (auto *v : {&m_nir, &m_nirsq, &m_nirx}) v->assign(n, 0.0);
     if (opt.cv_lines > 0)
         for (auto *v : {&m_cv, &m_cvsq}) v->assign(n, 0.0);
+    const bool recip = (opt.reciprocity || opt.check_reciprocity) && opt.cv_lines == 0;
+    if (recip) {
+        for (auto *v : {&m_r1, &m_r1sq}) v->assign(n, 0.0);
+        if (opt.interreflections)
+            for (auto *v : {&m_rir, &m_rirsq}) v->assign(n, 0.0);
+    }
+    m_area.assign(size_t(M) * M * m_bins, 0.0);
+    m_shot.assign(size_t(M) * M * m_bins, 0);
     m_count_cv.assign(size_t(M) * M * m_bins, 0);
-    m_stats.estimator_bytes = ((opt.interreflections ? 8 : 5) + (opt.cv_lines > 0 ? 2 : 0)) * n * sizeof(double) +
+    m_stats.estimator_bytes = ((opt.interreflections ? 8 : 5) + (opt.cv_lines > 0 ? 2 : 0) +
+                               (recip ? (opt.interreflections ? 4 : 2) : 0)) * n * sizeof(double) +
                               3 * size_t(M) * M * m_bins * sizeof(uint32_t);
     m_count_orig.assign(size_t(M) * M * m_bins, 0);
     m_count_low.assign(size_t(M) * M * m_bins, 0);
@@ -90,6 +99,7 @@ struct ScalingEstimator::Task {
     const int box, boy;     ///< the ωo bin (box, boy) of the N x N square
     const size_t base_idx;  ///< this task's [bi][ch] slice of the sums
     const bool cv;          ///< the control variate (scaling.h) is on
+    const bool recip;       ///< the reciprocal estimates are kept (scaling.h, "Reciprocity")
     PCG32 rng;              ///< the original's path continuations (lines and f'_low node sets have their own streams)
     std::vector<Vec3> wi;   ///< ωi of every bin for the current line (one random shift of the grid per line)
     int drawn_k = -1;       ///< the line of sight whose directions wi and wo_k hold (start_line)
@@ -99,6 +109,8 @@ struct ScalingEstimator::Task {
     std::vector<size_t> vis;   ///< f'_low's nodes facing ωo ...
     std::vector<double> vw;    ///< ... and their weights c_k
     size_t orig_lines = 0, vertices = 0, rejected = 0, leaked = 0;  ///< the original's lines
+    double q_ratio = 0;      ///< |Q| / |P| of the last line shot (shoot)
+    double area_orig = 0;    ///< Σ q_ratio over the accepted lines on the original (a_P, scaling.h "Reciprocity")
     uint32_t acc_orig = 0, acc_cv = 0;
     size_t cv_lines = 0;
     /// Per level of the group: accepted, traced, rejected and leaked h_low lines, thread time.
@@ -109,7 +121,7 @@ struct ScalingEstimator::Task {
     Task(ScalingEstimator &e, const std::vector<ScalingEstimator *> &g, size_t t, uint64_t seed)
         : est(e), group(g), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
           pa(int(t / size_t(B)) % M), pb(int(t / size_t(B)) / M), box(int(t % size_t(B)) % N),
-          boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3), cv(e.m_opt.cv_lines > 0),
+          boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3), cv(e.m_opt.cv_lines > 0), recip(!e.m_r1.empty()),
           rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)),
           fl(static_cast<size_t>(B)), acc_low(g.size(), 0), low_lines(g.size(), 0), low_rejected(g.size(), 0),
           low_leaked(g.size(), 0), t_low(g.size(), 0.0) {}
@@ -149,6 +161,7 @@ struct ScalingEstimator::Task {
     /// the first vertex, or false (counted as leaked or rejected).
     bool shoot(PCG32 &lr, const Heightfield &hf, const PatchRegion &R, Vec3 wo, int k, int K, bool macro, Vertex &v) {
         const ShootingRegion Q = shooting_region(hf, R, wo);
+        q_ratio = Q.area() / ((R.x1 - R.x0) * (R.y1 - R.y0));
         const int g = perfect_square_root(K);
         double sx, sy;
         if (g > 0) {
@@ -349,6 +362,7 @@ struct ScalingEstimator::Task {
         const bool ir = est.m_opt.interreflections, paired = Ko == Kl;
         const size_t G = group.size();
         LineBuf o[2] = {LineBuf(B), LineBuf(B)};
+        LineBuf r[2] = {LineBuf(recip ? B : 0), LineBuf(recip ? B : 0)};  // the transposed pairs' terms
         std::vector<LineBuf> l(2 * G, LineBuf(B));  // level j's pair: l[2 j], l[2 j + 1]
         for (int k = 0; k < std::max(Ko, Kl); ++k) {
             const int s = k & 1;
@@ -357,11 +371,23 @@ struct ScalingEstimator::Task {
                 o[s].clear();
                 if (trace_original_line(k, Ko, o[s])) {
                     ++acc_orig;
+                    area_orig += q_ratio;
                     if (cv)  // g - c (scaling.h, "Control variate")
                         for (size_t q = 0; q < size_t(B) * 3; ++q) o[s].a[q] -= o[s].c[q], o[s].b[q] -= o[s].c[q];
                     for (ScalingEstimator *e : group) {
                         add_line(e->m_n1, o[s].a);
                         if (ir) add_line(e->m_nir, o[s].b);
+                    }
+                }
+                if (recip) {  // g cos θo / cos θi (a rejected line: 0, as o[s])
+                    for (int b = 0; b < B; ++b) {
+                        const double f = wi[size_t(b)].z > 0.f ? double(wo_k.z) / double(wi[size_t(b)].z) : 0.0;
+                        for (size_t q = size_t(b) * 3; q < size_t(b) * 3 + 3; ++q)
+                            r[s].a[q] = o[s].a[q] * f, r[s].b[q] = ir ? o[s].b[q] * f : 0.0;
+                    }
+                    for (ScalingEstimator *e : group) {
+                        add_line(e->m_r1, r[s].a);
+                        if (ir) add_line(e->m_rir, r[s].b);
                     }
                 }
                 t_orig += seconds_since(t0);
@@ -389,6 +415,10 @@ struct ScalingEstimator::Task {
                 if (ir && o_pair)
                     add_pair(&o[0].b, whole ? &o[1].b : nullptr, paired ? &l0.a : nullptr, paired && whole ? &l1.a : nullptr,
                              &e.m_nirsq, nullptr, paired ? &e.m_nirx : nullptr);
+                if (recip && o_pair) {
+                    add_pair(&r[0].a, whole ? &r[1].a : nullptr, nullptr, nullptr, &e.m_r1sq, nullptr, nullptr);
+                    if (ir) add_pair(&r[0].b, whole ? &r[1].b : nullptr, nullptr, nullptr, &e.m_rirsq, nullptr, nullptr);
+                }
             }
         }
     }
@@ -437,6 +467,8 @@ struct ScalingEstimator::Task {
             ScalingEstimator &e = *group[j];
             e.m_count_cv[task] += acc_cv;
             e.m_count_orig[task] += acc_orig;
+            e.m_area[task] += area_orig;
+            e.m_shot[task] += uint32_t(orig_lines);
             e.m_count_low[task] += acc_low[j];
             ScalingStats &st = e.m_stats;
             st.orig_lines += orig_lines;
@@ -472,7 +504,8 @@ size_t ScalingEstimator::add_round_group(const std::vector<ScalingEstimator *> &
     for (const ScalingEstimator *e : group) {
         const ScalingOptions &eo = e->m_opt;
         if (&e->m_orig != &lead.m_orig || &e->m_base != &lead.m_base || eo.M != lo.M || eo.N != lo.N ||
-            eo.orig_paths != lo.orig_paths || eo.low_paths != lo.low_paths || eo.cv_lines != lo.cv_lines ||
+            eo.orig_paths != lo.orig_paths || eo.low_paths != lo.low_paths || eo.cv_lines != lo.cv_lines || eo.reciprocity != lo.reciprocity ||
+            eo.check_reciprocity != lo.check_reciprocity ||
             eo.interreflections != lo.interreflections || e->m_stats.rounds != lead.m_stats.rounds)
             throw MesoError("scaling function: estimators traced together must share the original, the base, M, N, "
                             "the line counts and their rounds");
@@ -544,8 +577,11 @@ void ScalingEstimator::share_round(const ScalingStats &before, const std::vector
         dist::allreduce_sum(c.data(), c.size());
         a.swap(c);
     };
-    for (std::vector<double> *a : {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq, &m_n1x, &m_nirx, &m_cv, &m_cvsq})
+    for (std::vector<double> *a :
+         {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq, &m_n1x, &m_nirx, &m_cv, &m_cvsq, &m_r1, &m_r1sq, &m_rir, &m_rirsq})
         share(*a, per);
+    share(m_area, 1);
+    share(m_shot, 1);
     share(m_count_cv, 1);
     share(m_count_orig, 1);
     share(m_count_low, 1);

@@ -89,6 +89,28 @@
 // 0.121 plain, 0.080 with K = 160, 7 rounds each). Tiny `plane` (steep
 // twill): Var(c) is above Var(g) and Var(g - c) about half of it, a loss at every K.
 //
+// Reciprocity (on unless cv_lines > 0). Over the whole periodic tile the original's effective
+// BRDF is reciprocal (paper 004 eq. 25; effective_brdf.h): f_eff(ωi, ωo) / cos θi =
+// f_eff(ωo, ωi) / cos θo, single bounce and with interreflections. So a line of sight of task
+// (P, bo) that splats g towards ωi (bin bi) also estimates the TRANSPOSED bin pair (ωo as the
+// light, ωi as the viewer) with g cos θo / cos θi, and every bin pair gets two independent
+// estimates: its own lines' and its transpose's. Per patch this holds only weighted by the
+// patch's visible projected area a_P(ω) (the ratio of what P shows towards ω to its flat
+// area: 1 on a stationary map, not on an emblem), so the combination is made on the tile:
+// N(j) = Σ_P a_P(bo) num_P(j) / Σ_P a_P(bo) and R(j) the same from the transposed lines with
+// a_P(bi); a_P(bo) = mean over the task's shot lines of accepted · |Q| / |P| (scaling.h's
+// shooting region, eq. 7-8). The numerators of bin pair j are then scaled by
+// ½ (N + R) / N in every patch (T keeps the patches' differences), and the standard error of
+// S counts both halves. Diagonal pairs (bi = bo: the same lines) are left as they are.
+// Measured (docs/bench.md, "Reciprocity"): on the bench plane (twill, gold Beckmann 0.25, x16-x128,
+// M = 4, one round) the median relative standard error of S goes 0.0853 -> 0.0640 for 6% more
+// time (1.8x the efficiency). But there the two estimates DISAGREE at the horizon: Σ R / Σ N is
+// about 1.14 over the pairs with ωi in the outer ring (78-90°) at M = 4, 1.00 at M = 1 (same map,
+// Q = P, no rejection): the numerators of lines of sight at grazing ωo with M > 1 patches differ
+// from their reciprocal by 10-15% (a_P weights set to 1: unchanged, so not the patch weighting).
+// Until that is found, the combination is off by default, and `check_reciprocity` reports the
+// ratios (ScalingStats::reciprocity_check, `meso prefilter --reciprocity check`).
+//
 // Units: both heightfields in cell space (effective_brdf.h); `low` covers the same tile with
 // W_low = W / F cells (its heights in its own cell units). The low model's material (an
 // SvMultiLobe) is evaluated in the MACRO frame; the original's base in the micro-normal frame.
@@ -121,6 +143,13 @@ struct ScalingOptions {
     /// Control variate (see "Control variate" above): cheap lines per (patch, ωo bin) per round
     /// that evaluate the first vertex's terms without shadow rays (0: no control variate).
     int cv_lines = 0;
+    /// Reciprocity (see "Reciprocity" above): S's numerators also estimated from the lines of
+    /// the transposed bin pair, and the two averaged (ignored with cv_lines > 0). Off by default:
+    /// see the measured inconsistency at grazing ωo with M > 1 there.
+    bool reciprocity = false;
+    /// Keep the transposed estimates and report their agreement with the direct ones
+    /// (ScalingStats::reciprocity_check) without combining them; implied by `reciprocity`.
+    bool check_reciprocity = false;
     /// Where a line's directions sit in their bins (see "Directions" above): false = at the bin
     /// centres, the points S's lookup interpolates between (table_lookup.cpp); true = jittered,
     /// ωo uniformly in its bin and all ωi bins on one random shift of the grid per line.
@@ -158,6 +187,10 @@ struct ScalingStats {
     double paper_ts_rel_error = 0;  ///< the same for eq. 22-24's T', S' (means of R), for comparison
     double rank1_energy_ir = 0, rank1_svd_rel_error_ir = 0, ts_rel_error_ir = 0, paper_ts_rel_error_ir = 0;
     std::vector<double> singular_values, singular_values_ir;  ///< all M² of them, descending
+    /// The reciprocity check of the single-bounce numerators (check_reciprocity; "Reciprocity"
+    /// above): Σ R / Σ N over the bin pairs with both bins inside the outer ring, with ωi in it,
+    /// with ωo in it (1 where the estimator is reciprocal; 0: not checked).
+    double reciprocity_check[3] = {0, 0, 0};
 };
 
 /// Accumulates the sums of one level over rounds, then produces T and S.
@@ -226,6 +259,11 @@ private:
     // (flattened as above), accepted cheap lines per (patch, bo).
     std::vector<double> m_cv, m_cvsq;
     std::vector<uint32_t> m_count_cv;
+    // Reciprocity: every accepted line's terms times cos θo / cos θi (the transposed pair's
+    // estimate, stored under the line's own task and ωi bin), their pair-difference squares,
+    // and per (patch, bo) the lines shot and Σ |Q| / |P| over the accepted ones (a_P(ωo)).
+    std::vector<double> m_r1, m_r1sq, m_rir, m_rirsq, m_area;
+    std::vector<uint32_t> m_shot;
     double m_slope_orig = 0, m_slope_low = 0;  // max |∇h| (detail::max_slope)
     ScalingStats m_stats;
 };

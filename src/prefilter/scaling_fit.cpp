@@ -104,6 +104,74 @@ BinPairMoments bin_pair_moments(const std::vector<double> &sum, const std::vecto
     return m;
 }
 
+/// The reciprocal half of S's numerators (scaling.h, "Reciprocity"): per bin pair j = (bo, bi),
+/// bi != bo, and channel, the tile's numerator from j's own lines, N = Σ_P a_P(bo) num_P(j) /
+/// Σ_P a_P(bo), and from the transposed pair's lines, R (rec_sum of task (P, bi) at ωi bin bo,
+/// with a_P(bi)); every patch's num(j) is scaled by ½ (N + R) / N, its variance so that the
+/// pooled relative error is that of ½ (N + R), and its covariance with the denominator halved
+/// (only N shares the denominator's lines) and scaled like the value.
+struct Reciprocal {
+    const std::vector<double> &sum, &sq, &area;
+    const std::vector<uint32_t> &count, &shot;
+};
+/// The reciprocity check (scaling.h, "Reciprocity"): Σ R / Σ N (green, the tile's two estimates
+/// of the same bin pairs) over the pairs with both bins inside the outer ring, with ωi in it
+/// (ωo inside), and with ωo in it (ωi inside); 1 where the estimator is reciprocal.
+struct ReciprocityCheck {
+    double n[3] = {0, 0, 0}, r[3] = {0, 0, 0};
+    double ratio(int k) const { return n[k] > 0 ? r[k] / n[k] : 0.0; }
+};
+void apply_reciprocity(BinPairMoments &m, const Reciprocal &r, int P, int N, bool combine, ReciprocityCheck &check) {
+    const int B = N * N;
+    auto outer = [&](int b) { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; };
+    std::vector<ReciprocityCheck> per_bo(static_cast<size_t>(B));
+    std::vector<double> a(size_t(P) * B);  // a_P(b): the mean over task (P, b)'s shot lines of accepted · |Q| / |P|
+    for (size_t t = 0; t < a.size(); ++t) a[t] = r.shot[t] > 0 ? r.area[t] / r.shot[t] : 0.0;
+    tbb::parallel_for(0, B, [&](int bo) {
+        for (int bi = 0; bi < B; ++bi) {
+            if (bi == bo) continue;
+            const size_t j = size_t(bo) * B + size_t(bi);
+            for (int c = 0; c < 3; ++c) {
+                double wn = 0, n = 0, vn = 0, wr = 0, rr = 0, vr = 0, pooled = 0, vpooled = 0;
+                for (int p = 0; p < P; ++p) {
+                    const size_t k = m.at(p, j, c);
+                    const double ao = a[size_t(p) * B + bo], ai = a[size_t(p) * B + bi];
+                    wn += ao, n += ao * m.num[k], vn += ao * ao * m.vnum[k];
+                    pooled += m.num[k], vpooled += m.vnum[k];
+                    const size_t tt = size_t(p) * B + size_t(bi);  // the transposed pair's task
+                    if (const double cnt = r.count[tt]; cnt > 0) {
+                        const size_t kr = (tt * B + size_t(bo)) * 3 + size_t(c);
+                        wr += ai, rr += ai * r.sum[kr] / cnt, vr += ai * ai * r.sq[kr] / (cnt * cnt);
+                    }
+                }
+                if (!(wn > 0) || !(wr > 0)) continue;  // one side has no accepted line: keep the direct one
+                n /= wn, vn /= wn * wn, rr /= wr, vr /= wr * wr;
+                if (c == 1 && N > 2) {
+                    const int k = outer(bi) ? (outer(bo) ? -1 : 1) : (outer(bo) ? 2 : 0);
+                    if (k >= 0) per_bo[size_t(bo)].n[k] += n, per_bo[size_t(bo)].r[k] += rr;
+                }
+                if (!combine) continue;
+                const double comb = 0.5 * (n + rr), vcomb = 0.25 * (vn + vr);
+                if (n > 0 && pooled > 0) {
+                    const double f = comb / n, target_rel2 = comb > 0 ? vcomb / (comb * comb) : 0.0;
+                    const double kv = vpooled > 0 ? target_rel2 * (f * pooled) * (f * pooled) / vpooled : 0.0;
+                    for (int p = 0; p < P; ++p) {
+                        const size_t k = m.at(p, j, c);
+                        m.num[k] *= f, m.vnum[k] *= kv, m.cov[k] *= 0.5 * f;
+                    }
+                } else if (comb > 0) {  // nothing from the direct lines: the transposed half alone, every patch
+                    for (int p = 0; p < P; ++p) {
+                        const size_t k = m.at(p, j, c);
+                        m.num[k] = comb, m.vnum[k] = double(P) * vcomb, m.cov[k] = 0.0;
+                    }
+                }
+            }
+        }
+    });
+    for (const ReciprocityCheck &q : per_bo)
+        for (int k = 0; k < 3; ++k) check.n[k] += q.n[k], check.r[k] += q.r[k];
+}
+
 /// T (P x 3, mean 1 per channel) and S (BB x 3) of one table set, and per channel the
 /// regularisation they were made with (the rank-1 check regularises R~ the same way).
 struct Rank1Factors {
@@ -202,6 +270,7 @@ struct TableStats {
            ts_err = 0, paper_err = 0;
     std::vector<double> sv;
     std::vector<double> pair_rel;  ///< S's relative standard error per bin pair j (-1: not estimated)
+    double reciprocity[3] = {0, 0, 0};  ///< ReciprocityCheck's ratios (0: not checked)
 };
 
 /// Relative standard error of a / d (delta method) from the variances and covariance.
@@ -350,9 +419,15 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     stats = m_stats;
     // One table set: moments, rank-1 factors, tables, then the diagnostics of the fit.
     auto build = [&](bool use_ir, ScalingTables &tab, TableStats &o) {
-        const BinPairMoments m = bin_pair_moments(use_ir ? m_nir : m_n1, use_ir ? m_nirsq : m_n1sq, m_d, m_dsq,
-                                                  use_ir ? m_nirx : m_n1x, m_count_orig, m_count_low, m_cv, m_cvsq,
-                                                  m_count_cv, P, B);
+        BinPairMoments m = bin_pair_moments(use_ir ? m_nir : m_n1, use_ir ? m_nirsq : m_n1sq, m_d, m_dsq,
+                                            use_ir ? m_nirx : m_n1x, m_count_orig, m_count_low, m_cv, m_cvsq, m_count_cv,
+                                            P, B);
+        if (!m_r1.empty()) {
+            ReciprocityCheck check;
+            apply_reciprocity(m, Reciprocal{use_ir ? m_rir : m_r1, use_ir ? m_rirsq : m_r1sq, m_area, m_count_orig, m_shot},
+                              P, N, m_opt.reciprocity, check);
+            for (int k = 0; k < 3; ++k) o.reciprocity[k] = check.ratio(k);
+        }
         Rank1Factors f;
         f.T.assign(size_t(P) * 3, 1.0);
         f.S.assign(m.BB * 3, 1.0);
@@ -369,6 +444,7 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     stats.paper_ts_rel_error = o1.paper_err;
     stats.S_rel_se_median_paper_counts = o1.med_paper;
     stats.singular_values = o1.sv;
+    for (int k = 0; k < 3; ++k) stats.reciprocity_check[k] = o1.reciprocity[k];
     if (per_bo) per_wo_bin_medians(o1.pair_rel, B, *per_bo);
     if (m_opt.interreflections) {
         TableStats o2;
