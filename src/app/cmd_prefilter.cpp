@@ -32,7 +32,7 @@ namespace {
 /// The flags as given (strings where they are parsed or checked in validate()).
 struct PrefilterFlags {
     prefilter::PipelineOptions pipeline;
-    std::string scales = "8,64", interreflections = "on", flow = "auto", reciprocity = "off";
+    std::string scales = "8,64", interreflections = "on", flow = "auto", reciprocity = "on";
     std::vector<std::string> params;
     int size = 0;
     int64_t gen_seed = -1;
@@ -153,9 +153,8 @@ SubcommandRegistrar reg_prefilter{
              ->check(CLI::Range(0, 1 << 20));
          app.add_option("--reciprocity", f->reciprocity,
                         "the effective BRDF's reciprocity (paper 004 eq. 25): every line of sight also estimates the "
-                        "transposed bin pair; check = report how the two estimates agree (per ring), on = average them "
-                        "into S (less variance; not the default: they disagree at grazing wo with M > 1, "
-                        "docs/bench.md), off; ignored with --cv-lines")
+                        "transposed bin pair; on = average the two into S (less variance) and report how they agree per "
+                        "ring class, check = only report, off; ignored with --cv-lines")
              ->capture_default_str();
          app.add_option("--directions", o->jitter_directions,
                         "where a line's wo and wi sit in their S bins: jitter (uniform in the bin: the bin's average) "

@@ -177,7 +177,7 @@ ScalingOptions scaling_options(const PipelineOptions &o, uint64_t seed) {
     sopt.low_nodes = o.low_nodes;
     sopt.cv_lines = o.cv_lines;
     sopt.reciprocity = o.reciprocity == 2;
-    sopt.check_reciprocity = o.reciprocity == 1;
+    sopt.check_reciprocity = o.reciprocity >= 1;
     sopt.jitter_directions = o.jitter_directions;
     sopt.epsilon = o.epsilon;
     sopt.target_error = o.target_error;
@@ -251,6 +251,7 @@ nlohmann::json stats_json(const ScalingStats &s, bool ir) {
                                                                    {"wi_outer_ring", s.reciprocity_check[1]},
                                                                    {"wo_outer_ring", s.reciprocity_check[2]}}
                                                   : nlohmann::json(nullptr)},
+                        {"reciprocity_used", {{"single", s.reciprocity_used}, {"ir", s.reciprocity_used_ir}}},
                         {"rank1", {{"energy_sigma1_sq", s.rank1_energy},
                                    {"svd_rel_error", s.rank1_svd_rel_error},
                                    {"TS_rel_error", s.ts_rel_error}, {"paper_eq22_24_rel_error", s.paper_ts_rel_error},
@@ -316,8 +317,9 @@ void finish_level(const PipelineOptions &o, LevelWork &w, const ScalingStats &st
     if (dist::rank() == 0 && (st.reciprocity_check[0] > 0 || st.reciprocity_check[1] > 0))
         std::fprintf(stderr,
                      "  x%d: reciprocity check (single bounce; transposed / direct estimate, 1 = reciprocal): inner "
-                     "%.4f, wi in the outer ring %.4f, wo in it %.4f\n",
-                     F, st.reciprocity_check[0], st.reciprocity_check[1], st.reciprocity_check[2]);
+                     "%.4f, wi in the outer ring %.4f, wo in it %.4f; reciprocal average used: single %s, ir %s\n",
+                     F, st.reciprocity_check[0], st.reciprocity_check[1], st.reciprocity_check[2],
+                     st.reciprocity_used ? "yes" : "no", st.reciprocity_used_ir ? "yes" : "no");
 }
 
 /// The level's per-cell model error and the per-sample variance it removes (level_error.h), for

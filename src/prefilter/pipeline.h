@@ -41,9 +41,9 @@ struct PipelineOptions {
     int paths = 64, low_paths = 64, low_nodes = 4;  ///< --paths, --low-paths, --low-nodes
     bool jitter_directions = true;  ///< --directions jitter (true, default) or centres (scaling.h, "Directions")
     bool level_error = false;  ///< --level-error: measure each level's model error for lod "rule": "mse" (level_error.h)
-    /// --reciprocity off (0, default) | check (1: report ScalingStats::reciprocity_check) | on (2:
-    /// combine the transposed estimates; scaling.h, "Reciprocity")
-    int reciprocity = 0;
+    /// --reciprocity off (0) | check (1: report ScalingStats::reciprocity_check) | on (2, default:
+    /// combine the transposed estimates and report the check; scaling.h, "Reciprocity")
+    int reciprocity = 2;
     int cv_lines = 0;  ///< --cv-lines: the control variate's cheap lines (scaling.h, "Control variate")
     double target_error = 0;   ///< --target-error (0: one round)
     int max_rounds = 8;        ///< --max-rounds

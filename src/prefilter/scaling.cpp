@@ -76,6 +76,8 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
     m_area.assign(size_t(M) * M * m_bins, 0.0);
     m_shot.assign(size_t(M) * M * m_bins, 0);
     m_count_cv.assign(size_t(M) * M * m_bins, 0);
+    m_wsum_cv.assign(size_t(M) * M * m_bins, 0.0);
+    m_wsum_low.assign(size_t(M) * M * m_bins, 0.0);
     m_stats.estimator_bytes = ((opt.interreflections ? 8 : 5) + (opt.cv_lines > 0 ? 2 : 0) +
                                (recip ? (opt.interreflections ? 4 : 2) : 0)) * n * sizeof(double) +
                               3 * size_t(M) * M * m_bins * sizeof(uint32_t);
@@ -112,11 +114,13 @@ struct ScalingEstimator::Task {
     double q_ratio = 0;      ///< |Q| / |P| of the last line shot (shoot)
     double area_orig = 0;    ///< Σ q_ratio over the accepted lines on the original (a_P, scaling.h "Reciprocity")
     uint32_t acc_orig = 0, acc_cv = 0;
+    double w_cv = 0;  ///< Σ |Q| / |P| over the accepted cheap lines (scaling.h, "Weights")
     size_t cv_lines = 0;
     /// Per level of the group: accepted, traced, rejected and leaked h_low lines, thread time.
     std::vector<uint32_t> acc_low;
     std::vector<size_t> low_lines, low_rejected, low_leaked;
     std::vector<double> t_low;
+    std::vector<double> w_low;  ///< per level: Σ |Q| / |P| over its accepted h_low lines
 
     Task(ScalingEstimator &e, const std::vector<ScalingEstimator *> &g, size_t t, uint64_t seed)
         : est(e), group(g), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
@@ -124,7 +128,7 @@ struct ScalingEstimator::Task {
           boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3), cv(e.m_opt.cv_lines > 0), recip(!e.m_r1.empty()),
           rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)),
           fl(static_cast<size_t>(B)), acc_low(g.size(), 0), low_lines(g.size(), 0), low_rejected(g.size(), 0),
-          low_leaked(g.size(), 0), t_low(g.size(), 0.0) {}
+          low_leaked(g.size(), 0), t_low(g.size(), 0.0), w_low(g.size(), 0.0) {}
 
     // Line k's own stream: its ωo, ωi shift and position in P are the same on G_orig and on
     // G_low (common random numbers: the two estimates of a bin are positively correlated).
@@ -372,6 +376,10 @@ struct ScalingEstimator::Task {
                 if (trace_original_line(k, Ko, o[s])) {
                     ++acc_orig;
                     area_orig += q_ratio;
+                    // The line's weight |Q(ωo)| / |P| (scaling.h, "Weights"): 1 when Q = P.
+                    if (q_ratio != 1.0)
+                        for (size_t q = 0; q < size_t(B) * 3; ++q)
+                            o[s].a[q] *= q_ratio, o[s].b[q] *= q_ratio, o[s].c[q] *= q_ratio;
                     if (cv)  // g - c (scaling.h, "Control variate")
                         for (size_t q = 0; q < size_t(B) * 3; ++q) o[s].a[q] -= o[s].c[q], o[s].b[q] -= o[s].c[q];
                     for (ScalingEstimator *e : group) {
@@ -398,6 +406,9 @@ struct ScalingEstimator::Task {
                 lb.clear();
                 if (trace_low_line(*group[j], j, k, Kl, lb)) {
                     ++acc_low[j];
+                    w_low[j] += q_ratio;
+                    if (q_ratio != 1.0)
+                        for (double &x : lb.a) x *= q_ratio;
                     add_line(group[j]->m_d, lb.a);
                 }
                 t_low[j] += seconds_since(t0);
@@ -442,12 +453,13 @@ struct ScalingEstimator::Task {
             ++cv_lines;
             if (shoot(lr, est.m_orig, R, wo, k, K, false, v)) {
                 ++acc_cv;
+                w_cv += q_ratio;
                 if (const Vec3 lwo = v.ctx.frame.to_local(wo); lwo.z > 0.f)
                     for (int b = 0; b < B; ++b) {
                         const Vec3 lwi = v.ctx.frame.to_local(wi[size_t(b)]);
                         if (!(lwi.z > 0.f)) continue;
                         const Spectrum f = est.m_base.eval(v.ctx, lwo, lwi);
-                        for (int q = 0; q < 3; ++q) c[s].a[size_t(b) * 3 + size_t(q)] = f[q];
+                        for (int q = 0; q < 3; ++q) c[s].a[size_t(b) * 3 + size_t(q)] = f[q] * q_ratio;
                     }
                 for (ScalingEstimator *e : group) add_line(e->m_cv, c[s].a);
             }
@@ -466,6 +478,8 @@ struct ScalingEstimator::Task {
         for (size_t j = 0; j < group.size(); ++j) {
             ScalingEstimator &e = *group[j];
             e.m_count_cv[task] += acc_cv;
+            e.m_wsum_cv[task] += w_cv;
+            e.m_wsum_low[task] += w_low[j];
             e.m_count_orig[task] += acc_orig;
             e.m_area[task] += area_orig;
             e.m_shot[task] += uint32_t(orig_lines);
@@ -581,6 +595,8 @@ void ScalingEstimator::share_round(const ScalingStats &before, const std::vector
          {&m_n1, &m_n1sq, &m_nir, &m_nirsq, &m_d, &m_dsq, &m_n1x, &m_nirx, &m_cv, &m_cvsq, &m_r1, &m_r1sq, &m_rir, &m_rirsq})
         share(*a, per);
     share(m_area, 1);
+    share(m_wsum_cv, 1);
+    share(m_wsum_low, 1);
     share(m_shot, 1);
     share(m_count_cv, 1);
     share(m_count_orig, 1);

@@ -89,6 +89,18 @@
 // 0.121 plain, 0.080 with K = 160, 7 rounds each). Tiny `plane` (steep
 // twill): Var(c) is above Var(g) and Var(g - c) about half of it, a loss at every K.
 //
+// Weights. With M > 1 a line of sight is shot from Q(ωo), P widened by the drift of a line
+// through the height range, and kept when its first hit is in P: it is kept with probability
+// a_P(ωo) |P| / |Q(ωo)|. With ωo jittered in its bin, |Q| varies over the bin (at the outer ring,
+// 78-90° at N = 15, tan θ from 4.7 to infinity), so the kept lines over-represented the less
+// grazing part of a grazing bin: the plain mean over kept lines was not the bin's average.
+// Every kept line is therefore weighted by |Q(ωo)| / |P| (its terms, and the divisor is the sum
+// of the weights), which makes the mean the bin's average weighted by a_P(ωo), the patch's
+// visible projected area (1 on average over the tile): on the original, on h_low and for the
+// control variate's lines. With Q = P (M = 1, or a patch spanning whole periods) every weight
+// is 1 and nothing changes. Found by the reciprocity check below (ωi in the outer ring: 1.22 at
+// M = 4 with jitter; 1.00 with M = 1, or with the directions at the bins' centres).
+//
 // Reciprocity (on unless cv_lines > 0). Over the whole periodic tile the original's effective
 // BRDF is reciprocal (paper 004 eq. 25; effective_brdf.h): f_eff(ωi, ωo) / cos θi =
 // f_eff(ωo, ωi) / cos θo, single bounce and with interreflections. So a line of sight of task
@@ -101,15 +113,14 @@
 // a_P(bi); a_P(bo) = mean over the task's shot lines of accepted · |Q| / |P| (scaling.h's
 // shooting region, eq. 7-8). The numerators of bin pair j are then scaled by
 // ½ (N + R) / N in every patch (T keeps the patches' differences), and the standard error of
-// S counts both halves. Diagonal pairs (bi = bo: the same lines) are left as they are.
-// Measured (docs/bench.md, "Reciprocity"): on the bench plane (twill, gold Beckmann 0.25, x16-x128,
-// M = 4, one round) the median relative standard error of S goes 0.0853 -> 0.0640 for 6% more
-// time (1.8x the efficiency). But there the two estimates DISAGREE at the horizon: Σ R / Σ N is
-// about 1.14 over the pairs with ωi in the outer ring (78-90°) at M = 4, 1.00 at M = 1 (same map,
-// Q = P, no rejection): the numerators of lines of sight at grazing ωo with M > 1 patches differ
-// from their reciprocal by 10-15% (a_P weights set to 1: unchanged, so not the patch weighting).
-// Until that is found, the combination is off by default, and `check_reciprocity` reports the
-// ratios (ScalingStats::reciprocity_check, `meso prefilter --reciprocity check`).
+// S counts both halves. Diagonal pairs (bi = bo: the same lines) are left as they are. The
+// average loses half of the common random numbers' cancellation (exact on a flat map), so a
+// table takes it only where it lowers S's median standard error (ScalingStats::reciprocity_used;
+// one choice per table, so it biases no bin). Measured (docs/bench.md, "Reciprocity"): on the
+// bench plane (twill, gold Beckmann 0.25, x16-x128, M = 4, one round) the median relative standard
+// error of S goes 0.0857 -> 0.0665 for 11% more time. `check_reciprocity` alone keeps the transposed estimates and reports
+// how they agree (ScalingStats::reciprocity_check; `meso prefilter --reciprocity check`): 1.00
+// in every ring class with the weights above, 1.17-1.22 where ωi is grazing without them.
 //
 // Units: both heightfields in cell space (effective_brdf.h); `low` covers the same tile with
 // W_low = W / F cells (its heights in its own cell units). The low model's material (an
@@ -144,9 +155,8 @@ struct ScalingOptions {
     /// that evaluate the first vertex's terms without shadow rays (0: no control variate).
     int cv_lines = 0;
     /// Reciprocity (see "Reciprocity" above): S's numerators also estimated from the lines of
-    /// the transposed bin pair, and the two averaged (ignored with cv_lines > 0). Off by default:
-    /// see the measured inconsistency at grazing ωo with M > 1 there.
-    bool reciprocity = false;
+    /// the transposed bin pair, and the two averaged (ignored with cv_lines > 0).
+    bool reciprocity = true;
     /// Keep the transposed estimates and report their agreement with the direct ones
     /// (ScalingStats::reciprocity_check) without combining them; implied by `reciprocity`.
     bool check_reciprocity = false;
@@ -191,6 +201,9 @@ struct ScalingStats {
     /// above): Σ R / Σ N over the bin pairs with both bins inside the outer ring, with ωi in it,
     /// with ωo in it (1 where the estimator is reciprocal; 0: not checked).
     double reciprocity_check[3] = {0, 0, 0};
+    /// S and T (single; ir_used for ir) come from the reciprocal average: with `reciprocity` it
+    /// is kept only where it lowers the table's median relative standard error.
+    bool reciprocity_used = false, reciprocity_used_ir = false;
 };
 
 /// Accumulates the sums of one level over rounds, then produces T and S.
@@ -264,6 +277,9 @@ private:
     // and per (patch, bo) the lines shot and Σ |Q| / |P| over the accepted ones (a_P(ωo)).
     std::vector<double> m_r1, m_r1sq, m_rir, m_rirsq, m_area;
     std::vector<uint32_t> m_shot;
+    // The means' divisors (see "Weights"): per (patch, bo), Σ |Q| / |P| over the accepted lines
+    // on the original (m_area), on h_low and of the control variate.
+    std::vector<double> m_wsum_low, m_wsum_cv;
     double m_slope_orig = 0, m_slope_low = 0;  // max |∇h| (detail::max_slope)
     ScalingStats m_stats;
 };

@@ -33,8 +33,8 @@ double ScalingEstimator::denom_mean(int ch) const {
     size_t n = 0;
     const size_t tasks = size_t(m_opt.M) * m_opt.M * m_bins;
     for (size_t t = 0; t < tasks; ++t) {
-        const double c = m_count_low[t];
-        if (c == 0) continue;
+        const double c = m_wsum_low[t];
+        if (!(c > 0)) continue;
         for (int b = 0; b < m_bins; ++b) s += m_d[(t * m_bins + b) * 3 + ch] / c;
         n += size_t(m_bins);
     }
@@ -46,11 +46,11 @@ ScalingEstimator::BinMoments ScalingEstimator::bin_moments(int patch, int bi, in
     const size_t k = (t * m_bins + bi) * 3 + ch;
     BinMoments b;
     b.lines_orig = m_count_orig[t], b.lines_low = m_count_low[t];
-    const double no = b.lines_orig, nl = b.lines_low;
+    const double no = m_area[t], nl = m_wsum_low[t];  // the weights' sums (scaling.h, "Weights")
     if (no > 0) {
         b.num = (ir ? m_nir[k] : m_n1[k]) / no;
         b.num_se = std::sqrt((ir ? m_nirsq[k] : m_n1sq[k])) / no;
-        if (const double nc = m_count_cv[t]; nc > 0)
+        if (const double nc = m_wsum_cv[t]; nc > 0)
             b.num += m_cv[k] / nc, b.num_se = std::hypot(b.num_se, std::sqrt(m_cvsq[k]) / nc);
     }
     if (nl > 0) b.den = m_d[k] / nl, b.den_se = std::sqrt(m_dsq[k]) / nl;
@@ -60,9 +60,9 @@ ScalingEstimator::BinMoments ScalingEstimator::bin_moments(int patch, int bi, in
 double ScalingEstimator::R(int patch, int bi, int bo, int ch, bool ir) const {
     const size_t t = size_t(patch) * m_bins + bo;
     const size_t k = (t * m_bins + bi) * 3 + ch;
-    const double no = m_count_orig[t], nl = m_count_low[t];
+    const double no = m_area[t], nl = m_wsum_low[t];
     const double eps = m_opt.epsilon * denom_mean(ch);
-    const double nc = m_count_cv[t];
+    const double nc = m_wsum_cv[t];
     const double num = (no > 0 ? (ir ? m_nir[k] : m_n1[k]) / no : 0.0) + (nc > 0 ? m_cv[k] / nc : 0.0);
     const double den = nl > 0 ? m_d[k] / nl : 0.0;
     return (num + eps) / (den + eps);
@@ -84,9 +84,9 @@ struct BinPairMoments {
 /// `dsum`/`dsq`, the cross terms `cross`) as means, variances and covariances of the means.
 BinPairMoments bin_pair_moments(const std::vector<double> &sum, const std::vector<double> &sq,
                                 const std::vector<double> &dsum, const std::vector<double> &dsq,
-                                const std::vector<double> &cross, const std::vector<uint32_t> &count_orig,
-                                const std::vector<uint32_t> &count_low, const std::vector<double> &cv,
-                                const std::vector<double> &cvsq, const std::vector<uint32_t> &count_cv, int P, int B) {
+                                const std::vector<double> &cross, const std::vector<double> &count_orig,
+                                const std::vector<double> &count_low, const std::vector<double> &cv,
+                                const std::vector<double> &cvsq, const std::vector<double> &count_cv, int P, int B) {
     BinPairMoments m;
     m.BB = size_t(B) * B;
     const size_t n_all = size_t(P) * m.BB * 3;
@@ -107,12 +107,16 @@ BinPairMoments bin_pair_moments(const std::vector<double> &sum, const std::vecto
 /// The reciprocal half of S's numerators (scaling.h, "Reciprocity"): per bin pair j = (bo, bi),
 /// bi != bo, and channel, the tile's numerator from j's own lines, N = Σ_P a_P(bo) num_P(j) /
 /// Σ_P a_P(bo), and from the transposed pair's lines, R (rec_sum of task (P, bi) at ωi bin bo,
-/// with a_P(bi)); every patch's num(j) is scaled by ½ (N + R) / N, its variance so that the
-/// pooled relative error is that of ½ (N + R), and its covariance with the denominator halved
-/// (only N shares the denominator's lines) and scaled like the value.
+/// with a_P(bi)), averaged: C = ½ (N + R) (fixed weights: weights estimated from the same
+/// samples biased C low by 2-7% in a test). Every patch's num(j) is scaled by C / N, its variance
+/// so that the pooled relative error is that of C, and its covariance with the denominator halved
+/// (only N shares the denominator's lines) and scaled like the value. The averaged numerators lose
+/// half of the common random numbers' cancellation, so finish() keeps them only where they lower
+/// S's median standard error (ScalingStats::reciprocity_used).
 struct Reciprocal {
     const std::vector<double> &sum, &sq, &area;
-    const std::vector<uint32_t> &count, &shot;
+    const std::vector<double> &count;  ///< the divisors of the transposed lines' means (weights' sums)
+    const std::vector<uint32_t> &shot;
 };
 /// The reciprocity check (scaling.h, "Reciprocity"): Σ R / Σ N (green, the tile's two estimates
 /// of the same bin pairs) over the pairs with both bins inside the outer ring, with ωi in it
@@ -151,13 +155,13 @@ void apply_reciprocity(BinPairMoments &m, const Reciprocal &r, int P, int N, boo
                     if (k >= 0) per_bo[size_t(bo)].n[k] += n, per_bo[size_t(bo)].r[k] += rr;
                 }
                 if (!combine) continue;
-                const double comb = 0.5 * (n + rr), vcomb = 0.25 * (vn + vr);
+                const double w = 0.5, comb = w * n + (1 - w) * rr, vcomb = w * w * vn + (1 - w) * (1 - w) * vr;
                 if (n > 0 && pooled > 0) {
                     const double f = comb / n, target_rel2 = comb > 0 ? vcomb / (comb * comb) : 0.0;
                     const double kv = vpooled > 0 ? target_rel2 * (f * pooled) * (f * pooled) / vpooled : 0.0;
                     for (int p = 0; p < P; ++p) {
                         const size_t k = m.at(p, j, c);
-                        m.num[k] *= f, m.vnum[k] *= kv, m.cov[k] *= 0.5 * f;
+                        m.num[k] *= f, m.vnum[k] *= kv, m.cov[k] *= w * f;
                     }
                 } else if (comb > 0) {  // nothing from the direct lines: the transposed half alone, every patch
                     for (int p = 0; p < P; ++p) {
@@ -271,6 +275,7 @@ struct TableStats {
     std::vector<double> sv;
     std::vector<double> pair_rel;  ///< S's relative standard error per bin pair j (-1: not estimated)
     double reciprocity[3] = {0, 0, 0};  ///< ReciprocityCheck's ratios (0: not checked)
+    bool reciprocity_used = false;      ///< the tables are the reciprocal average's
 };
 
 /// Relative standard error of a / d (delta method) from the variances and covariance.
@@ -420,20 +425,33 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     // One table set: moments, rank-1 factors, tables, then the diagnostics of the fit.
     auto build = [&](bool use_ir, ScalingTables &tab, TableStats &o) {
         BinPairMoments m = bin_pair_moments(use_ir ? m_nir : m_n1, use_ir ? m_nirsq : m_n1sq, m_d, m_dsq,
-                                            use_ir ? m_nirx : m_n1x, m_count_orig, m_count_low, m_cv, m_cvsq, m_count_cv,
+                                            use_ir ? m_nirx : m_n1x, m_area, m_wsum_low, m_cv, m_cvsq, m_wsum_cv,
                                             P, B);
-        if (!m_r1.empty()) {
-            ReciprocityCheck check;
-            apply_reciprocity(m, Reciprocal{use_ir ? m_rir : m_r1, use_ir ? m_rirsq : m_r1sq, m_area, m_count_orig, m_shot},
-                              P, N, m_opt.reciprocity, check);
-            for (int k = 0; k < 3; ++k) o.reciprocity[k] = check.ratio(k);
-        }
+        auto fit = [&](const BinPairMoments &mm, Rank1Factors &f, TableStats &st) {
+            f.T.assign(size_t(P) * 3, 1.0);
+            f.S.assign(mm.BB * 3, 1.0);
+            tbb::parallel_for(0, 3, [&](int c) { fit_rank1_channel(mm, P, c, m_opt.epsilon, f); });  // channels apart
+            standard_errors(mm, f, m_count_orig, m_count_low, P, N, st);
+        };
         Rank1Factors f;
-        f.T.assign(size_t(P) * 3, 1.0);
-        f.S.assign(m.BB * 3, 1.0);
-        tbb::parallel_for(0, 3, [&](int c) { fit_rank1_channel(m, P, c, m_opt.epsilon, f); });  // channels apart
+        fit(m, f, o);
+        if (!m_r1.empty()) {
+            // The reciprocal average (scaling.h, "Reciprocity"), kept when it lowers S's median error.
+            BinPairMoments mr = m;
+            ReciprocityCheck check;
+            apply_reciprocity(mr, Reciprocal{use_ir ? m_rir : m_r1, use_ir ? m_rirsq : m_r1sq, m_area, m_area, m_shot},
+                              P, N, m_opt.reciprocity, check);
+            double ratios[3];
+            for (int k = 0; k < 3; ++k) ratios[k] = check.ratio(k);
+            if (m_opt.reciprocity) {
+                Rank1Factors fr;
+                TableStats orr;
+                fit(mr, fr, orr);
+                if (orr.med < o.med) m = std::move(mr), f = std::move(fr), o = std::move(orr), o.reciprocity_used = true;
+            }
+            for (int k = 0; k < 3; ++k) o.reciprocity[k] = ratios[k];
+        }
         write_tables(f, M, N, tab);
-        standard_errors(m, f, m_count_orig, m_count_low, P, N, o);
         if (!per_bo) rank1_check(m, f, P, N, o);
     };
     TableStats o1;
@@ -445,6 +463,7 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     stats.S_rel_se_median_paper_counts = o1.med_paper;
     stats.singular_values = o1.sv;
     for (int k = 0; k < 3; ++k) stats.reciprocity_check[k] = o1.reciprocity[k];
+    stats.reciprocity_used = o1.reciprocity_used;
     if (per_bo) per_wo_bin_medians(o1.pair_rel, B, *per_bo);
     if (m_opt.interreflections) {
         TableStats o2;
@@ -452,6 +471,7 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
         stats.S_ir_rel_se_median = o2.med, stats.S_ir_rel_se_p90 = o2.p90;
         stats.S_ir_rel_se_median_outer = o2.med_outer, stats.T_ir_rel_se_max = o2.t_max;
         stats.T_ir_rel_se_median = o2.t_med;
+        stats.reciprocity_used_ir = o2.reciprocity_used;
         stats.rank1_energy_ir = o2.energy, stats.rank1_svd_rel_error_ir = o2.svd_err, stats.ts_rel_error_ir = o2.ts_err;
         stats.paper_ts_rel_error_ir = o2.paper_err;
         stats.S_ir_rel_se_median_paper_counts = o2.med_paper;
