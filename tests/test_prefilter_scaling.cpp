@@ -525,6 +525,34 @@ TEST(PrefilterScalingEstimator, ControlVariateUnbiasedAgainstBruteForce) { check
 TEST(PrefilterScalingEstimator, LobesFormUnbiasedAgainstBruteForce) { check_against_brute_force(0, true); }
 TEST(PrefilterScalingEstimator, JitteredDirectionsUnbiasedAgainstBruteForce) { check_against_brute_force(0, false, true); }
 
+namespace {
+/// One round of the estimator with options o, finished into single / ir; its stats.
+template <class LevelT>
+ScalingStats one_round(const LevelT &L, const Material &base, const ScalingOptions &o, ScalingTables &single,
+                       ScalingTables &ir) {
+    ScalingEstimator est(L.orig, base, L.low, *L.flow, o);
+    est.add_round();
+    ScalingStats st;
+    est.finish(single, ir, st);
+    return st;
+}
+
+/// The median over table entries (one vector of values over seeds each) of the relative
+/// standard deviation over seeds (entries with a mean of 0 skipped).
+double median_rel_spread(const std::vector<std::vector<double>> &per_entry) {
+    std::vector<double> rel;
+    for (const auto &v : per_entry) {
+        const double n = double(v.size());
+        double m = 0, m2 = 0;
+        for (double x : v) m += x / n, m2 += x * x / n;
+        if (m > 0) rel.push_back(std::sqrt(std::max(0.0, m2 - m * m) * n / (n - 1)) / m);
+    }
+    if (rel.empty()) return 0.0;
+    std::nth_element(rel.begin(), rel.begin() + long(rel.size() / 2), rel.end());
+    return rel[rel.size() / 2];
+}
+}  // namespace
+
 TEST(PrefilterScalingEstimator, ReportedStandardErrorMatchesTheSpreadOverSeeds) {
     // The median relative standard error of S the estimator reports against the spread of S
     // over 16 seeds (median over bin pairs). Lines at independent positions (12 a task, not a
@@ -544,24 +572,14 @@ TEST(PrefilterScalingEstimator, ReportedStandardErrorMatchesTheSpreadOverSeeds) 
             ScalingOptions o = small_options(2, N, paths);
             o.seed = uint64_t(seed);
             o.cv_lines = cv_lines;
-            ScalingEstimator est(L.orig, *base, L.low, *L.flow, o);
-            est.add_round();
             ScalingTables single, ir;
-            ScalingStats st;
-            est.finish(single, ir, st);
+            const ScalingStats st = one_round(L, *base, o, single, ir);
             reported.push_back(st.S_rel_se_median);
             for (int bo = 0; bo < B; ++bo)
                 for (int bi = 0; bi < B; ++bi) S[size_t(bo) * B + bi].push_back(single.S_bin(bi, bo)[1]);
         }
-        std::vector<double> rel;
-        for (const auto &v : S) {
-            double m = 0, m2 = 0;
-            for (double x : v) m += x / seeds, m2 += x * x / seeds;
-            if (m > 0) rel.push_back(std::sqrt(std::max(0.0, m2 - m * m) * seeds / (seeds - 1)) / m);
-        }
-        std::nth_element(rel.begin(), rel.begin() + long(rel.size() / 2), rel.end());
         std::nth_element(reported.begin(), reported.begin() + seeds / 2, reported.end());
-        const double empirical = rel[rel.size() / 2], rep = reported[size_t(seeds / 2)];
+        const double empirical = median_rel_spread(S), rep = reported[size_t(seeds / 2)];
         std::printf("paths %d, cv lines %d: reported median rel. std. error of S %.4f, spread over seeds %.4f\n", paths,
                     cv_lines, rep, empirical);
         EXPECT_GT(rep, 0.8 * empirical) << paths;
@@ -593,11 +611,8 @@ TEST(PrefilterScalingEstimator, ReciprocityLowersTheVarianceWithoutBiasOnOneTile
             o.seed = uint64_t(seed + 50 * mode);
             o.reciprocity = mode == 1;
             o.check_reciprocity = mode == 0 && seed == 1;
-            ScalingEstimator est(L.orig, *base, L.low, *L.flow, o);
-            est.add_round();
             ScalingTables single, ir;
-            ScalingStats st;
-            est.finish(single, ir, st);
+            const ScalingStats st = one_round(L, *base, o, single, ir);
             rep.push_back(st.S_rel_se_median);
             if (o.check_reciprocity) {
                 std::printf("reciprocity check, M = 1: inner %.4f, wi outer %.4f, wo outer %.4f\n", st.reciprocity_check[0],
@@ -613,15 +628,8 @@ TEST(PrefilterScalingEstimator, ReciprocityLowersTheVarianceWithoutBiasOnOneTile
                 }
             for (int k = 0; k < 3; ++k) tot[mode][k] += t[k] / seeds, tot2[mode][k] += t[k] * t[k] / seeds;
         }
-        std::vector<double> rel;
-        for (const auto &v : S) {
-            double m = 0, m2 = 0;
-            for (double x : v) m += x / seeds, m2 += x * x / seeds;
-            if (m > 0) rel.push_back(std::sqrt(std::max(0.0, m2 - m * m) * seeds / (seeds - 1)) / m);
-        }
-        std::nth_element(rel.begin(), rel.begin() + long(rel.size() / 2), rel.end());
         std::nth_element(rep.begin(), rep.begin() + seeds / 2, rep.end());
-        spread[mode] = rel[rel.size() / 2], reported[mode] = rep[size_t(seeds / 2)];
+        spread[mode] = median_rel_spread(S), reported[mode] = rep[size_t(seeds / 2)];
     }
     std::printf("median rel. spread of S over seeds: direct %.4f, combined %.4f (reported %.4f, %.4f)\n", spread[0],
                 spread[1], reported[0], reported[1]);
@@ -650,11 +658,8 @@ TEST(PrefilterScalingEstimator, PatchesWithJitteredDirectionsAreReciprocal) {
     for (int M : {1, 2}) {
         ScalingOptions o = small_options(M, 5, M == 1 ? 1024 : 256);
         o.check_reciprocity = true;
-        ScalingEstimator est(L.orig, *base, L.low, *L.flow, o);
-        est.add_round();
         ScalingTables single, ir;
-        ScalingStats st;
-        est.finish(single, ir, st);
+        const ScalingStats st = one_round(L, *base, o, single, ir);
         std::printf("M = %d: reciprocity check inner %.4f, wi outer %.4f, wo outer %.4f\n", M, st.reciprocity_check[0],
                     st.reciprocity_check[1], st.reciprocity_check[2]);
         for (int k = 0; k < 3; ++k) EXPECT_NEAR(st.reciprocity_check[k], 1.0, 0.04) << "M " << M << " class " << k;
