@@ -119,6 +119,19 @@ TEST(Sobol, ClosedFormGeneratorsMatchDirectionNumbers) {
         EXPECT_EQ(sobol_dim1(1u << (k - 1)), m << (32 - k)) << k;
         EXPECT_EQ(sobol_dim0(1u << (k - 1)), 1u << (32 - k)) << k;
     }
+    // The byte-table form equals the bit loop (XOR of the direction numbers of the set bits) and
+    // bit reversal equals the bit-by-bit definition, on indices with every bit pattern.
+    uint64_t state = 0x853c49e6748fea9bULL;
+    for (int n = 0; n < 100000; ++n) {
+        state = state * 6364136223846793005ULL + 1442695040888963407ULL;
+        const uint32_t i = uint32_t(state >> 32);
+        uint32_t x = 0, v = 0x80000000u, r = 0;
+        for (uint32_t k = i; k; k >>= 1, v ^= v >> 1)
+            if (k & 1u) x ^= v;
+        for (int b = 0; b < 32; ++b) r |= ((i >> b) & 1u) << (31 - b);
+        ASSERT_EQ(sobol_dim1(i), x) << i;
+        ASSERT_EQ(reverse_bits32(i), r) << i;
+    }
     // Natural-order points of dimension 1: x_i = XOR of v_k over the set bits of i.
     const double expect1[8] = {0, 0.5, 0.75, 0.25, 0.625, 0.125, 0.375, 0.875};
     for (uint32_t i = 0; i < 8; ++i) EXPECT_DOUBLE_EQ(sobol_dim1(i) * 0x1p-32, expect1[i]) << i;

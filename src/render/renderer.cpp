@@ -46,7 +46,10 @@ struct Film {
     }
 };
 
-constexpr int TileSize = 32;
+/// 16x16 tiles: a 320x240 pass has 300 of them, so that the threads' last tiles (whose cost
+/// varies tenfold between background and detailed surface) leave little idle time at the
+/// pass's end (32x32: 80 tiles, 5 per thread at 16 threads; scripts/experiments/thread_scaling).
+constexpr int TileSize = 16;
 
 }  // namespace
 
@@ -165,7 +168,11 @@ RenderResult render(const Scene &scene, const RenderOptions &opts) {
     // Under a time budget, passes are smaller (>= 8k samples, 1 spp from 90x90 pixels up) so
     // that the budget is used to within a few per cent even for small images and short
     // budgets (equal-time comparisons, `meso bench`).
-    const int spp_per_pass = std::max(1, int(std::ceil((timed ? 8192.0 : 65536.0) / (double(win.w) * win.h))));
+    // With many threads a pass is larger still (>= 32k or 4k samples a thread): each pass ends
+    // with the threads waiting for the slowest tile, a fixed cost that a 16-thread pass of 1 spp
+    // at 320x240 (about 20 ms) paid 64 times for 64 spp.
+    const double pass_samples = timed ? std::max(8192.0, 4096.0 * threads) : std::max(65536.0, 32768.0 * threads);
+    const int spp_per_pass = std::max(1, int(std::ceil(pass_samples / (double(win.w) * win.h))));
     // pbrt-v4: scale camera differentials by max(1/8, 1/sqrt(spp)) (footprint of one sample).
     const float diff_scale = std::max(0.125f, 1.f / std::sqrt(float(timed ? std::max(total_spp, 1) : total_spp)));
 
