@@ -6,6 +6,7 @@
 #include <tbb/global_control.h>
 #include <tbb/info.h>
 #include <tbb/parallel_for.h>
+#include <tbb/partitioner.h>
 #include <unistd.h>
 #include <atomic>
 #include <chrono>
@@ -76,7 +77,11 @@ void render_pass(const Scene &scene, const RenderOptions &opts, const Window &wi
     // Camera rays carry differentials only where the integrator reads them (asked after its
     // preprocess): otherwise two camera rays less per sample.
     const bool differentials = scene.integrator->camera_differentials(scene);
-    tbb::parallel_for(tbb::blocked_range2d<int>(0, tiles_y, 1, 0, tiles_x, 1), [&](const tbb::blocked_range2d<int> &r) {
+    // One task a tile (simple_partitioner): the auto partitioner hands out chunks of several
+    // tiles, and the last chunk of a pass kept the other threads waiting.
+    tbb::parallel_for(
+        tbb::blocked_range2d<int>(0, tiles_y, 1, 0, tiles_x, 1),
+        [&](const tbb::blocked_range2d<int> &r) {
         std::unique_ptr<Sampler> sampler = scene.sampler->clone();
         if (opts.seed) sampler->set_seed(*opts.seed);
         RenderStats &st = stats.local();
@@ -118,7 +123,8 @@ void render_pass(const Scene &scene, const RenderOptions &opts, const Window &wi
                         }
                     }
             }
-    });
+        },
+        tbb::simple_partitioner());
 }
 
 /// The --convergence log (pass, elapsed, spp, MSE, relMSE after every pass), or null.
