@@ -410,3 +410,26 @@ TEST(PatchNdf, TimingFbm1024) {
                         factor, all.size(), n, n, sec, it / all.size(), conv, lobes / all.size(), lo, hi);
         }
 }
+
+TEST(PatchNdf, TimingSquarem) {
+    // EM against SQUAREM-accelerated EM on the pipeline's options (exact κ, κ up to 1e9), n = 2.
+    if (!std::getenv("MESO_TIMING")) GTEST_SKIP() << "timing measurement, not a check: run with MESO_TIMING=1";
+    const Heightfield hf(gen("fbm", {{"size", "1024"}, {"amplitude", "0.02"}, {"seed", "1"}}), 1.f, 0.f);
+    for (int factor : {16, 64})
+        for (bool acc : {false, true}) {
+            PatchNdfOptions opt;
+            opt.cell_size = 1.0 / 1024;
+            opt.samples_per_cell = 2;
+            opt.em.exact_kappa = true;
+            opt.em.max_kappa = 1e9;
+            opt.em.accelerate = acc;
+            const auto t0 = std::chrono::steady_clock::now();
+            const std::vector<PatchNdf> all = fit_svndf(hf, factor, opt);
+            const double sec = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+            double it = 0, ll = 0;
+            int conv = 0;
+            for (const PatchNdf &p : all) it += p.iterations, ll += p.log_likelihood, conv += p.converged;
+            std::printf("fbm 1024^2, factor %d, %s: %.2f s; mean M-steps %.1f, converged %d of %zu, mean log-likelihood %.6f\n",
+                        factor, acc ? "SQUAREM" : "EM", sec, it / all.size(), conv, all.size(), ll / all.size());
+        }
+}

@@ -1,6 +1,7 @@
 // Spherical EM for vMF mixtures; see vmf_mixture.h for the method and the degenerate cases.
 #include "bsdf/vmf_mixture.h"
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <string>
@@ -316,7 +317,9 @@ double e_step(const Data &d, const std::vector<Lobe> &lobes, std::vector<double>
             lmax = std::max(lmax, l[j]);
         }
         double s = 0.0;
-        for (size_t j = 0; j < K; ++j) s += (l[j] = std::exp(l[j] - lmax));
+        // Below -746 exp is exactly 0: skipping it there is bit-identical (sharp lobes are far
+        // from most directions, in log terms).
+        for (size_t j = 0; j < K; ++j) s += (l[j] = l[j] - lmax < -746.0 ? 0.0 : std::exp(l[j] - lmax));
         L += w * (lmax + std::log(s));
         const double scale = w / s;
         for (size_t j = 0; j < K; ++j) {
@@ -328,6 +331,124 @@ double e_step(const Data &d, const std::vector<Lobe> &lobes, std::vector<double>
         }
     }
     return L / d.total;
+}
+
+/// Plain EM from the start `lobes` (header comment): E-step, convergence test, M-step.
+void plain_em(const Data &d, std::vector<Lobe> &lobes, const VmfEmOptions &opt, std::vector<double> &N,
+              std::vector<Dir> &R, VmfMixture &out) {
+    double prev = -std::numeric_limits<double>::infinity();
+    bool dropped = false;
+    for (int it = 0;; ++it) {
+        const double L = e_step(d, lobes, N, R);
+        out.log_likelihood = L;
+        if (it > 0 && !dropped && std::abs(L - prev) <= opt.tolerance * (1.0 + std::abs(L))) {
+            out.converged = true;
+            break;
+        }
+        if (it == opt.max_iterations) break;
+        lobes_from_sums(lobes, N, R, opt);
+        dropped = drop_light_lobes(lobes, opt.min_weight);
+        prev = L;
+        ++out.iterations;
+    }
+}
+
+/// A lobe in SQUAREM's coordinates (a_j, μ_j, ln κ_j): ln κ keeps sharp lobes (κ up to 1e9)
+/// and broad ones on one scale.
+std::array<double, 5> coords(const Lobe &l) {
+    return {l.weight, l.mu.x, l.mu.y, l.mu.z, std::log(std::max(l.kappa, 1e-12))};
+}
+
+/// θ0 − 2α r + α² v per lobe (r = θ1 − θ0, v = θ2 − 2θ1 + θ0) in coords, projected back:
+/// weights clamped to >= 1e-12 and renormalised, μ normalised (θ2's where it collapses), κ
+/// clamped to [0, max_kappa].
+std::vector<Lobe> extrapolate(const std::vector<Lobe> &t0, const std::vector<Lobe> &t1, const std::vector<Lobe> &t2,
+                              double alpha, const VmfEmOptions &opt) {
+    std::vector<Lobe> out = t2;
+    double total = 0.0;
+    for (size_t j = 0; j < out.size(); ++j) {
+        const std::array<double, 5> c0 = coords(t0[j]), c1 = coords(t1[j]), c2 = coords(t2[j]);
+        double e[5];
+        for (int c = 0; c < 5; ++c) e[c] = c0[c] - 2.0 * alpha * (c1[c] - c0[c]) + alpha * alpha * (c2[c] - 2.0 * c1[c] + c0[c]);
+        Lobe &l = out[j];
+        l.weight = std::max(1e-12, e[0]);
+        total += l.weight;
+        const double len = std::sqrt(e[1] * e[1] + e[2] * e[2] + e[3] * e[3]);
+        if (len > 1e-6 && std::isfinite(len)) l.mu = {e[1] / len, e[2] / len, e[3] / len};
+        const double k = std::exp(std::min(e[4], 700.0));
+        l.kappa = std::clamp(k < 1e-9 ? 0.0 : k, 0.0, opt.max_kappa);
+    }
+    for (Lobe &l : out) l.weight /= total;
+    return out;
+}
+
+/// |r|² and |v|² of a SQUAREM cycle in coords.
+void cycle_norms(const std::vector<Lobe> &t0, const std::vector<Lobe> &t1, const std::vector<Lobe> &t2, double &r2,
+                 double &v2) {
+    r2 = v2 = 0.0;
+    for (size_t j = 0; j < t0.size(); ++j) {
+        const std::array<double, 5> c0 = coords(t0[j]), c1 = coords(t1[j]), c2 = coords(t2[j]);
+        for (int c = 0; c < 5; ++c) {
+            const double r = c1[c] - c0[c], v = c2[c] - 2.0 * c1[c] + c0[c];
+            r2 += r * r;
+            v2 += v * v;
+        }
+    }
+}
+
+/// EM accelerated by SQUAREM (Varadhan and Roland 2008, scheme S3, with the monotone
+/// safeguard). A cycle makes two EM steps θ0 → θ1 → θ2, then tries θ' = θ0 − 2α r + α² v with
+/// α = −|r| / |v| (in [−64, −1]); θ' is kept when its likelihood is at least θ1's (so the
+/// likelihood never falls), else the cycle ends at θ2. The convergence test is EM's, on the
+/// plain step θ0 → θ1 of each cycle, and the lobes returned are always an M-step's (θ1 of the
+/// last cycle), so every property of an M-step (header comment of prefilter/patch_ndf.h:
+/// a_j A₃(κ_j) μ_j = R_j / Σ w) holds for the result as for plain EM. A cycle whose M-steps
+/// drop a lobe, or that would leave fewer than three M-steps of max_iterations, is plain EM.
+void squarem(const Data &d, std::vector<Lobe> &lobes, const VmfEmOptions &opt, std::vector<double> &N,
+             std::vector<Dir> &R, VmfMixture &out) {
+    double L = e_step(d, lobes, N, R);  // θ0's likelihood and sums
+    out.log_likelihood = L;
+    std::vector<double> Np;
+    std::vector<Dir> Rp;
+    while (out.iterations < opt.max_iterations) {
+        std::vector<Lobe> t1 = lobes;
+        lobes_from_sums(t1, N, R, opt);
+        const bool drop1 = drop_light_lobes(t1, opt.min_weight);
+        ++out.iterations;
+        const double L1 = e_step(d, t1, N, R);
+        const bool conv = !drop1 && std::abs(L1 - L) <= opt.tolerance * (1.0 + std::abs(L1));
+        if (conv || drop1 || out.iterations + 3 > opt.max_iterations) {
+            lobes.swap(t1);
+            L = out.log_likelihood = L1;
+            if (conv) {
+                out.converged = true;
+                return;
+            }
+            continue;
+        }
+        std::vector<Lobe> t2 = t1;
+        lobes_from_sums(t2, N, R, opt);
+        const bool drop2 = drop_light_lobes(t2, opt.min_weight);
+        ++out.iterations;
+        if (!drop2) {
+            double r2, v2;
+            cycle_norms(lobes, t1, t2, r2, v2);
+            const double alpha = v2 > 0.0 ? std::clamp(-std::sqrt(r2 / v2), -64.0, -1.0) : -1.0;
+            if (alpha < -1.0) {
+                std::vector<Lobe> tp = extrapolate(lobes, t1, t2, alpha, opt);
+                const double Lp = e_step(d, tp, Np, Rp);
+                if (std::isfinite(Lp) && Lp >= L1) {
+                    lobes.swap(tp);
+                    N.swap(Np);
+                    R.swap(Rp);
+                    L = out.log_likelihood = Lp;
+                    continue;
+                }
+            }
+        }
+        lobes.swap(t2);
+        L = out.log_likelihood = e_step(d, lobes, N, R);
+    }
 }
 
 void check_options(const VmfEmOptions &opt) {
@@ -366,21 +487,10 @@ VmfMixture fit_vmf_mixture(const Vec3 *dirs, const double *weights, size_t n, co
 
     std::vector<double> N;
     std::vector<Dir> R;
-    double prev = -std::numeric_limits<double>::infinity();
-    bool dropped = false;
-    for (int it = 0;; ++it) {
-        const double L = e_step(d, lobes, N, R);
-        out.log_likelihood = L;
-        if (it > 0 && !dropped && std::abs(L - prev) <= opt.tolerance * (1.0 + std::abs(L))) {
-            out.converged = true;
-            break;
-        }
-        if (it == opt.max_iterations) break;
-        lobes_from_sums(lobes, N, R, opt);
-        dropped = drop_light_lobes(lobes, opt.min_weight);
-        prev = L;
-        ++out.iterations;
-    }
+    if (opt.accelerate)
+        squarem(d, lobes, opt, N, R, out);
+    else
+        plain_em(d, lobes, opt, N, R, out);
 
     std::stable_sort(lobes.begin(), lobes.end(), [](const Lobe &a, const Lobe &b) {
         return a.weight != b.weight ? a.weight > b.weight : a.order < b.order;

@@ -24,6 +24,15 @@
 // κ_j = 0 (a uniform lobe).
 // Convergence: the mean log-likelihood L = Σ w_i log p(x_i) / Σ w_i (non-decreasing under
 // EM) changes by at most tolerance · (1 + |L|) between two E-steps, or max_iterations M-steps.
+// Acceleration (accelerate, the default): SQUAREM (Varadhan and Roland 2008, Scand. J. Stat.
+// 35, scheme S3). Each cycle makes two EM steps θ0 → θ1 → θ2 and tries the extrapolation
+// θ0 − 2α r + α² v (r = θ1 − θ0, v = θ2 − 2θ1 + θ0, α = −|r|/|v| in [−64, −1], in the
+// coordinates a_j, μ_j, ln κ_j, projected back onto valid lobes); it is kept only if its
+// likelihood is at least θ1's, so L still never decreases. The convergence test is the plain
+// step θ0 → θ1 of each cycle, and the result is always an M-step's. Where EM converges slowly
+// (overlapping lobes, patch NDFs) it needs a quarter to a half of the M-steps for the same
+// maximum (tests: VmfMixture.SquaremReachesEmsMaximumInFewerSteps, 137 → 33; the logo's x16
+// SVNDF, 85.6 → 44.2 M-steps a patch on average, 13702 → 16104 of 16384 patches converged).
 //
 // Deterministic initialisation. Greedy weighted k-means++ on the sphere with the distance
 // d(x, c) = 1 − x·c = |x − c|²/2 (the squared chord / 2, so this is k-means++'s D² sampling):
@@ -88,6 +97,7 @@ struct VmfEmOptions {
     double min_weight = 1e-4;    ///< lobes whose weight falls below this are dropped
     double max_kappa = 1e6;      ///< κ is clamped to [0, max_kappa] (deltas become max_kappa)
     bool exact_kappa = false;    ///< κ from A₃(κ) = r (exact) instead of Banerjee's approximation
+    bool accelerate = true;      ///< SQUAREM cycles (vmf_mixture.cpp, squarem); false: plain EM
     int init_restarts = 4;       ///< k-means++ / Lloyd starts; the lowest k-means objective is used
     uint64_t seed = 0x5eed0f5eedULL;  ///< PCG32 streams of the k-means++ initialisation
 };
