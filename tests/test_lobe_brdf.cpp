@@ -336,13 +336,14 @@ TEST(LobeBrdf, BatchEvalIsEval) {
 }
 
 TEST(LobeBrdf, ViewerSideCacheNeverServesAnotherModelOrPatch) {
-    // The ωo side of a microfacet pass is kept per thread for the last (model, patch, ωo)
-    // (lobe_brdf.cpp, WoCache). Interleaving two models with the same layout but different lobes,
+    // The ωo side of a microfacet pass, and the Lambertian lobes' view weights, are kept per
+    // thread for the last (model, patch, ωo) (lobe_brdf.cpp, WoCache and LambertWoCache). Interleaving two models with the same layout but different lobes,
     // two patches and a repeated ωo, every eval, pdf and sample must be what a model evaluated
     // alone (a fresh copy made after the others, so nothing it asks can be cached) gives.
     const PatchNdf tilted = make_ndf({{unit(0.6, -0.2, 0.7), 20.0, 0.7}, {unit(0.0, 0.0, 1.0), 300.0, 0.3}});
     const PatchNdf other = make_ndf({{unit(-0.5, 0.3, 0.8), 8.0, 0.4}, {unit(0.1, 0.1, 1.0), 60.0, 0.6}});
-    for (const char *b : {kBeckmann, kGgx}) {
+    const char *diffuse = R"({"type":"diffuse","reflectance":0.7})";
+    for (const char *b : {kBeckmann, kGgx, diffuse}) {
         const auto j = nlohmann::json::parse(b);
         auto make = [&](const PatchNdf &second) {
             return std::make_unique<SvLobeBrdf>(make_lobe_base(make_material(b), j, "base"),

@@ -523,13 +523,42 @@ void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 
     }
 }
 
+namespace {
+/// The Lambertian lobes' view weights of one patch towards ωo, kept per thread for the last (model,
+/// patch, ωo) as WoCache is for microfacet lobes: a vertex asks eval_pdf, sample (choose, then
+/// eval_pdf) and pdf with one ωo, and the weights' table lookups were a third of each pass.
+struct LambertWoCache {
+    static constexpr uint32_t kMax = 64;
+    uint64_t serial = 0;  ///< 0: empty
+    uint32_t patch = 0;
+    float wx = 0.f, wy = 0.f, wz = 0.f;
+    float v[kMax];
+};
+thread_local LambertWoCache tl_lambert_wo;
+}  // namespace
+
+const float *SvLobeBrdf::lambert_weights(size_t patch, const Vec3 &wo) const {
+    LambertWoCache &c = tl_lambert_wo;
+    if (c.serial == m_serial && c.patch == uint32_t(patch) && std::memcmp(&c.wx, &wo.x, sizeof(float)) == 0 &&
+        std::memcmp(&c.wy, &wo.y, sizeof(float)) == 0 && std::memcmp(&c.wz, &wo.z, sizeof(float)) == 0)
+        return c.v;
+    const auto [b, e] = lobes(patch);
+    const size_t n = std::min<size_t>(size_t(e - b), LambertWoCache::kMax);
+    c.serial = 0;  // invalid while being filled
+    for (size_t j = 0; j < n; ++j) c.v[j] = view_weight(b[j], wo);
+    c.serial = m_serial, c.patch = uint32_t(patch), c.wx = wo.x, c.wy = wo.y, c.wz = wo.z;
+    return c.v;
+}
+
 Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
                                       float *pdf) const {
     const VmfTables &tab = vmf_tables();
-    const auto [b, e] = lobes(patch);
+    const auto [b, e0] = lobes(patch);
+    const Lobe *e = b + std::min<ptrdiff_t>(e0 - b, LambertWoCache::kMax);
+    const float *vw = lambert_weights(patch, wo);
     float sum = 0.f, psum = 0.f, ptot = 0.f;
     for (const Lobe *l = b; l != e; ++l) {
-        const float v = view_weight(*l, wo);
+        const float v = vw[l - b];
         if (!(v > 0.f)) continue;
         const float ti = dot(l->mu, wi);
         ptot += v;
@@ -563,14 +592,12 @@ float SvLobeBrdf::pdf(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi)
     return p;
 }
 
-const SvLobeBrdf::Lobe *SvLobeBrdf::choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const {
-    float w[64];
-    const int n = int(std::min<ptrdiff_t>(e - b, 64));
+const SvLobeBrdf::Lobe *SvLobeBrdf::choose(size_t patch, const Vec3 &wo, float u_lobe) const {
+    const auto [b, e] = lobes(patch);
+    const int n = int(std::min<ptrdiff_t>(e - b, LambertWoCache::kMax));
+    const float *w = lambert_weights(patch, wo);
     float total = 0.f;
-    for (int j = 0; j < n; ++j) {
-        w[j] = view_weight(b[j], wo);
-        total += w[j];
-    }
+    for (int j = 0; j < n; ++j) total += w[j];
     if (!(total > 0.f)) return nullptr;
     float target = u_lobe * total;
     for (int j = 0; j < n; ++j) {
@@ -638,8 +665,7 @@ bool SvLobeBrdf::sample_direction(const ShadingContext &ctx, const Vec3 &wo, flo
         const LobeBlock &B = m_blocks[b];
         if (!sample_microfacet(Vec3(B.mx[q], B.my[q], B.mz[q]), B.alpha[q], wo, u, wi)) return false;
     } else {
-        const auto [lb, le] = lobes(patch);
-        const Lobe *l = choose(lb, le, wo, u_lobe);
+        const Lobe *l = choose(patch, wo, u_lobe);
         if (!l) return false;
         // t = μ·ωi with density C(t, κ_j) / mass, the azimuth about μ uniform: the density of
         // ωi is the lobe's pdf term C(μ·ωi, κ_j) · inv_mass exactly (the vMF-convolved clamped

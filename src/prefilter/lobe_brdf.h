@@ -215,8 +215,11 @@ private:
     /// A lobe's weight towards ωo (P_j ∝ it): c_j v_j(ωo) of the header (Lambertian lobes, and
     /// facing microfacet lobes in the visible form).
     float view_weight(const Lobe &l, const Vec3 &wo) const;
-    /// The Lambertian lobe chosen by u_lobe for wo (P_j of the header); null when none faces wo.
-    const Lobe *choose(const Lobe *b, const Lobe *e, const Vec3 &wo, float u_lobe) const;
+    /// view_weight of each Lambertian lobe of `patch` towards wo, in the patch's order, from the
+    /// thread's cache of the last (model, patch, ωo) when it holds them (the same values).
+    const float *lambert_weights(size_t patch, const Vec3 &wo) const;
+    /// The Lambertian lobe of `patch` chosen by u_lobe for wo (P_j of the header); null when none faces wo.
+    const Lobe *choose(size_t patch, const Vec3 &wo, float u_lobe) const;
     /// The microfacet lobe chosen by u_lobe for wo (P_j of the header), from the patch's blocks
     /// (the data and weights eval_pdf_microfacet reads, so a vertex touches one lobe array): block b, lane q.
     bool choose_block(size_t patch, const Vec3 &wo, float u_lobe, uint32_t &b, int &q) const;
