@@ -376,7 +376,7 @@ std::vector<Lobe> extrapolate(const std::vector<Lobe> &t0, const std::vector<Lob
         const double len = std::sqrt(e[1] * e[1] + e[2] * e[2] + e[3] * e[3]);
         if (len > 1e-6 && std::isfinite(len)) l.mu = {e[1] / len, e[2] / len, e[3] / len};
         const double k = std::exp(std::min(e[4], 700.0));
-        l.kappa = std::clamp(k < 1e-9 ? 0.0 : k, 0.0, opt.max_kappa);
+        if (std::isfinite(k)) l.kappa = std::clamp(k < 1e-9 ? 0.0 : k, 0.0, opt.max_kappa);  // else θ2's
     }
     for (Lobe &l : out) l.weight /= total;
     return out;

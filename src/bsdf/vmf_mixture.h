@@ -30,7 +30,7 @@
 // coordinates a_j, μ_j, ln κ_j, projected back onto valid lobes); it is kept only if its
 // likelihood is at least θ1's, so L still never decreases. The convergence test is the plain
 // step θ0 → θ1 of each cycle, and the result is always an M-step's. Where EM converges slowly
-// (overlapping lobes, patch NDFs) it needs a quarter to a half of the M-steps for the same
+// (overlapping lobes, patch NDFs) it needs a quarter to two thirds of the M-steps for the same
 // maximum (tests: VmfMixture.SquaremReachesEmsMaximumInFewerSteps, 137 → 33; the logo's x16
 // SVNDF, 85.6 → 44.2 M-steps a patch on average, 13702 → 16104 of 16384 patches converged).
 //
