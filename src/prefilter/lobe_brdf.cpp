@@ -170,6 +170,7 @@ inline float hsum(__m128 v) {
 /// give garbage, masked by wi_terms). eval_batch computes it once per ωo for all its ωi.
 struct WoTerms {
     __m128 lo, c, lam_o;
+    __m128 c4lo;  ///< c / (4 lo): the ωo part of a lane's term (wi_terms), one division per ωo instead of per ωi
 };
 // (Templates on the block type: SvLobeBrdf::LobeBlock is private to the class.)
 template <class Block>
@@ -177,7 +178,7 @@ inline WoTerms wo_terms(const Block &B, bool ggx, bool visible, __m128 ox, __m12
     const __m128 lo = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_load_ps(B.mx), ox), _mm_mul_ps(_mm_load_ps(B.my), oy)),
                                  _mm_mul_ps(_mm_load_ps(B.mz), oz));
     const __m128 c = visible ? visible_weights(B.c, B.crow, B.cfy, B.inv_cz, lo) : _mm_load_ps(B.c);
-    return {lo, c, lambda4(ggx, _mm_load_ps(B.alpha), _mm_load_ps(B.a2), lo)};
+    return {lo, c, lambda4(ggx, _mm_load_ps(B.alpha), _mm_load_ps(B.a2), lo), _mm_div_ps(c, _mm_mul_ps(_mm_set1_ps(4.f), lo))};
 }
 /// The ωi side of one block (ωi, half vector h): adds c D G / (4 μ_j·ωo) to sum and c D (μ_j·h) to
 /// psum over the lanes whose lobe faces ωo, ωi and h. Lanes that fail a condition are masked to 0
@@ -205,8 +206,9 @@ inline void wi_terms(const Block &B, const WoTerms &o, bool ggx, __m128 ix, __m1
     }
     D = _mm_and_ps(ok, D);
     psum = _mm_add_ps(psum, _mm_mul_ps(_mm_mul_ps(o.c, D), ch));
-    const __m128 G = _mm_div_ps(one, _mm_add_ps(one, _mm_add_ps(o.lam_o, lambda4(ggx, _mm_load_ps(B.alpha), a2, li))));
-    const __m128 term = _mm_div_ps(_mm_mul_ps(_mm_mul_ps(o.c, D), G), _mm_mul_ps(_mm_set1_ps(4.f), o.lo));
+    // c D G / (4 μ_j·ωo) with G = 1 / (1 + Λ(ωo) + Λ(ωi)): one division (c / (4 lo) is per ωo).
+    const __m128 term = _mm_div_ps(_mm_mul_ps(o.c4lo, D),
+                                   _mm_add_ps(one, _mm_add_ps(o.lam_o, lambda4(ggx, _mm_load_ps(B.alpha), a2, li))));
     sum = _mm_add_ps(sum, _mm_and_ps(ok, term));
 }
 
