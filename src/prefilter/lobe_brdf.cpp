@@ -218,16 +218,22 @@ inline void wi_terms(const Block &B, const WoTerms &o, bool ggx, __m128 ix, __m1
 /// lookups and Smith Λ(ωo)) is most of a pass. Keyed by the model's serial number (not its
 /// address, which a later model may reuse) and ωo's bits: a hit returns exactly what a recompute
 /// would. Patches of more than kMaxBlocks blocks are not cached.
-struct WoCache {
-    static constexpr uint32_t kMaxBlocks = 16;
+/// The key of a per-thread ωo cache (WoCache, LambertWoCache): model serial, patch, ωo's bits.
+struct WoKey {
     uint64_t serial = 0;  ///< 0: empty (serials start at 1)
-    uint32_t patch = 0, n = 0;
-    float wx = 0.f, wy = 0.f, wz = 0.f, pt = 0.f;
-    WoTerms terms[kMaxBlocks];
+    uint32_t patch = 0;
+    float wx = 0.f, wy = 0.f, wz = 0.f;
     bool holds(uint64_t s, uint32_t p, const Vec3 &w) const {
         return serial == s && patch == p && std::memcmp(&wx, &w.x, sizeof(float)) == 0 &&
                std::memcmp(&wy, &w.y, sizeof(float)) == 0 && std::memcmp(&wz, &w.z, sizeof(float)) == 0;
     }
+    void set(uint64_t s, uint32_t p, const Vec3 &w) { serial = s, patch = p, wx = w.x, wy = w.y, wz = w.z; }
+};
+struct WoCache {
+    static constexpr uint32_t kMaxBlocks = 16;
+    WoKey key;  ///< key.serial 0 while being filled
+    float pt = 0.f;
+    WoTerms terms[kMaxBlocks];
 };
 thread_local WoCache tl_wo_cache;
 std::atomic<uint64_t> g_lobe_serial{0};
@@ -239,14 +245,14 @@ const WoTerms *wo_side(const Block *B, uint32_t nb, uint64_t serial, uint32_t pa
                        const Vec3 &wo, float &pt) {
     WoCache &c = tl_wo_cache;
     const bool fits = nb <= WoCache::kMaxBlocks;
-    if (fits && c.holds(serial, patch, wo)) {
+    if (fits && c.key.holds(serial, patch, wo)) {
         pt = c.pt;
         return c.terms;
     }
     thread_local std::vector<WoTerms> big;
     WoTerms *t = c.terms;
     if (!fits) big.resize(nb), t = big.data();
-    c.serial = 0;  // invalid while being filled
+    c.key.serial = 0;  // invalid while being filled
     const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
     __m128 ptot = _mm_setzero_ps();
     for (uint32_t b = 0; b < nb; ++b) {
@@ -254,7 +260,7 @@ const WoTerms *wo_side(const Block *B, uint32_t nb, uint64_t serial, uint32_t pa
         ptot = _mm_add_ps(ptot, _mm_and_ps(_mm_cmpgt_ps(t[b].lo, _mm_setzero_ps()), t[b].c));
     }
     pt = hsum(ptot);
-    if (fits) c.serial = serial, c.patch = patch, c.wx = wo.x, c.wy = wo.y, c.wz = wo.z, c.pt = pt, c.n = nb;
+    if (fits) c.key.set(serial, patch, wo), c.pt = pt;
     return t;
 }
 
@@ -531,9 +537,7 @@ namespace {
 /// eval_pdf) and pdf with one ωo, and the weights' table lookups were a third of each pass.
 struct LambertWoCache {
     static constexpr uint32_t kMax = 64;
-    uint64_t serial = 0;  ///< 0: empty
-    uint32_t patch = 0;
-    float wx = 0.f, wy = 0.f, wz = 0.f;
+    WoKey key;  ///< key.serial 0 while being filled
     float v[kMax];
 };
 thread_local LambertWoCache tl_lambert_wo;
@@ -541,14 +545,12 @@ thread_local LambertWoCache tl_lambert_wo;
 
 const float *SvLobeBrdf::lambert_weights(size_t patch, const Vec3 &wo) const {
     LambertWoCache &c = tl_lambert_wo;
-    if (c.serial == m_serial && c.patch == uint32_t(patch) && std::memcmp(&c.wx, &wo.x, sizeof(float)) == 0 &&
-        std::memcmp(&c.wy, &wo.y, sizeof(float)) == 0 && std::memcmp(&c.wz, &wo.z, sizeof(float)) == 0)
-        return c.v;
+    if (c.key.holds(m_serial, uint32_t(patch), wo)) return c.v;
     const auto [b, e] = lobes(patch);
     const size_t n = std::min<size_t>(size_t(e - b), LambertWoCache::kMax);
-    c.serial = 0;  // invalid while being filled
+    c.key.serial = 0;  // invalid while being filled
     for (size_t j = 0; j < n; ++j) c.v[j] = view_weight(b[j], wo);
-    c.serial = m_serial, c.patch = uint32_t(patch), c.wx = wo.x, c.wy = wo.y, c.wz = wo.z;
+    c.key.set(m_serial, uint32_t(patch), wo);
     return c.v;
 }
 

@@ -114,8 +114,9 @@ BinPairMoments bin_pair_moments(const std::vector<double> &sum, const std::vecto
 /// half of the common random numbers' cancellation, so finish() keeps them only where they lower
 /// S's median standard error (ScalingStats::reciprocity_used).
 struct Reciprocal {
+    /// area: per task, Σ |Q| / |P| over its accepted lines, both a_P's numerator and the divisor
+    /// of the transposed lines' means (the weights' sum, scaling.h "Weights").
     const std::vector<double> &sum, &sq, &area;
-    const std::vector<double> &count;  ///< the divisors of the transposed lines' means (weights' sums)
     const std::vector<uint32_t> &shot;
 };
 /// The reciprocity check (scaling.h, "Reciprocity"): Σ R / Σ N (green, the tile's two estimates
@@ -143,7 +144,7 @@ void apply_reciprocity(BinPairMoments &m, const Reciprocal &r, int P, int N, boo
                     wn += ao, n += ao * m.num[k], vn += ao * ao * m.vnum[k];
                     pooled += m.num[k], vpooled += m.vnum[k];
                     const size_t tt = size_t(p) * B + size_t(bi);  // the transposed pair's task
-                    if (const double cnt = r.count[tt]; cnt > 0) {
+                    if (const double cnt = r.area[tt]; cnt > 0) {
                         const size_t kr = (tt * B + size_t(bo)) * 3 + size_t(c);
                         wr += ai, rr += ai * r.sum[kr] / cnt, vr += ai * ai * r.sq[kr] / (cnt * cnt);
                     }
@@ -439,7 +440,7 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
             // The reciprocal average (scaling.h, "Reciprocity"), kept when it lowers S's median error.
             BinPairMoments mr = m;
             ReciprocityCheck check;
-            apply_reciprocity(mr, Reciprocal{use_ir ? m_rir : m_r1, use_ir ? m_rirsq : m_r1sq, m_area, m_area, m_shot},
+            apply_reciprocity(mr, Reciprocal{use_ir ? m_rir : m_r1, use_ir ? m_rirsq : m_r1sq, m_area, m_shot},
                               P, N, m_opt.reciprocity, check);
             double ratios[3];
             for (int k = 0; k < 3; ++k) ratios[k] = check.ratio(k);
