@@ -12,7 +12,7 @@
 #include "core/properties.h"
 #include "core/registry.h"
 #include "geometry/shape.h"
-#include "lights/float_trig.h"
+#include "core/float_trig.h"
 #include "lights/light.h"
 #include "lights/spherical_rectangle.h"
 #include "sampling/distribution.h"

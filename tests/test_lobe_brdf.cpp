@@ -3,7 +3,8 @@
 // their exact quadratures, χ² of the sampler against the pdf (conductor Beckmann and GGX, diffuse;
 // grazing viewers), the κ → ∞ limit (the base itself), the closed form against the dense eq. 5
 // quadrature for narrow and wide lobes (the difference is printed: the tables absorb it), white
-// energy, extremes, eval_batch against eval, and the located errors of unsupported bases.
+// energy, extremes, eval_batch against eval, the Lambertian visible form's vectorised sums against
+// the header's formula lobe by lobe, and the located errors of unsupported bases.
 #include <gtest/gtest.h>
 #include <cmath>
 #include <cstdio>
@@ -406,4 +407,46 @@ TEST(LobeBrdf, UnsupportedBasesAreNamed) {
               std::string::npos);
     EXPECT_EQ(err(kBeckmann), "");
     EXPECT_EQ(err(kDiffuse), "");
+}
+
+TEST(LobeBrdf, LambertianEvalAndPdfAreTheHeaderFormula) {
+    // The Lambertian lobes' visible form (lobe_brdf.h), summed four lobes at a time from the
+    // patch's blocks, against the header's formula lobe by lobe through vmf_clamped_cosine:
+    //   eval = ρ/π Σ_j w_j C(μ_j·ωi, κ_j),  w_j = c_j v_j / Σ_k c_k v_k · Σ_k c_k,
+    //   c_j = A a_j C(μ_j,z, κ_j),  v_j = C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j),
+    //   pdf = Σ_j P_j C(μ_j·ωi, κ_j) / (2π ∫C(t, κ_j) dt),  P_j = c_j v_j / Σ_k c_k v_k,
+    // with seven lobes (a full block and a partial one), some facing away from the viewer.
+    PatchNdf ndf = six_lobes();
+    ndf.lobes.push_back({unit(-0.7, 0.5, 0.3), 0.5, 0.12});
+    {
+        double s = 0.0;
+        for (const VmfLobe &l : ndf.lobes) s += l.weight;
+        for (VmfLobe &l : ndf.lobes) l.weight /= s;
+    }
+    auto f = lobe_form(kDiffuse, ndf);
+    auto mass = [](double kappa) {  // ∫ C(t, κ) dt over [-1, 1], fine trapezoids of the bilinear table
+        double m = 0.0;
+        const int n = 8192;
+        for (int i = 0; i < n; ++i)
+            m += 0.5 * (2.0 / n) *
+                 (vmf_clamped_cosine(float(-1.0 + 2.0 * i / n), kappa) + vmf_clamped_cosine(float(-1.0 + 2.0 * (i + 1) / n), kappa));
+        return m;
+    };
+    meso::PCG32 rng(11, 3);
+    for (int k = 0; k < 200; ++k) {
+        const Vec3 wo = dir_deg(89.5 * rng.next_double(), 360.0 * rng.next_double());
+        const Vec3 wi = dir_deg(89.5 * rng.next_double(), 360.0 * rng.next_double());
+        double ctot = 0.0, cv = 0.0, sum = 0.0, psum = 0.0;
+        for (const VmfLobe &l : ndf.lobes) {
+            const Vec3 mu = unit(l.mu.x, l.mu.y, l.mu.z);
+            const double cz = vmf_clamped_cosine(mu.z, l.kappa), c = ndf.amplitude * l.weight * cz;
+            const double v = vmf_clamped_cosine(dot(mu, wo), l.kappa) / cz, ci = vmf_clamped_cosine(dot(mu, wi), l.kappa);
+            ctot += c, cv += c * v, sum += c * v * ci, psum += c * v * ci / (2.0 * kPi * mass(l.kappa));
+        }
+        float pdf = 0.f;
+        const Spectrum e = f->eval_pdf(kCtx, wo, wi, &pdf);
+        const double want = 0.8 / kPi * sum / cv * ctot;
+        EXPECT_NEAR(e.g, want, 2e-4 * want) << "wo " << wo.x << " " << wo.y << " " << wo.z;
+        EXPECT_NEAR(pdf, psum / cv, 1e-3 * psum / cv) << "wo " << wo.x << " " << wo.y << " " << wo.z;
+    }
 }

@@ -44,7 +44,7 @@
 #include "core/properties.h"
 #include "core/registry.h"
 #include "core/transform_parse.h"
-#include "lights/float_trig.h"
+#include "core/float_trig.h"
 
 namespace meso {
 
@@ -109,7 +109,7 @@ EnvMapLight::EnvMapLight(const Image &img, float scale, const Transform &to_worl
 
 Spectrum EnvMapLight::texel(int x, int y) const { return m_texels[size_t(y) * m_w + x]; }
 
-// The two maps in float without libm calls (lights/float_trig.h: within 4e-7 rad, i.e. 6e-8 in
+// The two maps in float without libm calls (core/float_trig.h: within 4e-7 rad, i.e. 6e-8 in
 // u and 1.3e-7 in v); theta as atan2(sin, cos), which, unlike acos(d.y), keeps its accuracy
 // at the poles.
 Vec2 EnvMapLight::direction_to_uv(Vec3 d) {

@@ -13,7 +13,7 @@
 #pragma once
 #include <algorithm>
 #include <cmath>
-#include "lights/float_trig.h"
+#include "core/float_trig.h"
 #include "lights/spherical_triangle.h"  // DVec3
 
 namespace meso {

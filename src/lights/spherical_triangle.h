@@ -14,7 +14,7 @@
 #include <cmath>
 #include <algorithm>
 #include "core/vec.h"
-#include "lights/float_trig.h"
+#include "core/float_trig.h"
 
 namespace meso {
 namespace sphtri {

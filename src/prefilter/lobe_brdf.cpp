@@ -2,6 +2,7 @@
 #include "prefilter/lobe_brdf.h"
 #include <algorithm>
 #include <atomic>
+#include <cstdint>
 #include <cmath>
 #include <cstring>
 #include <fmt/format.h>
@@ -9,6 +10,7 @@
 #include <smmintrin.h>
 #include <tbb/parallel_for.h>
 #include "core/error.h"
+#include "core/float_trig.h"
 #include "core/frame.h"
 #include "core/properties.h"
 #include "filter/vmf.h"
@@ -30,7 +32,11 @@ struct VmfTables {
     /// ∫ from −1 to column i of row r's piecewise-linear C (trapezoids), row-major like C: the
     /// CDF that samples t exactly from the tabulated C (sample_t).
     std::vector<double> Ccum;
-    VmfTables() : C(size_t(kT) * kK), H(size_t(kT) * kK), Ccum(size_t(kT) * kK) {
+    /// Per row, kG cutpoints (Chen and Asau 1974): guide[row * kG + g] = the column holding the
+    /// fraction g / kG of the row's mass (sample_t starts there).
+    static constexpr int kG = 128;
+    std::vector<uint8_t> guide;
+    VmfTables() : C(size_t(kT) * kK), H(size_t(kT) * kK), Ccum(size_t(kT) * kK), guide(size_t(kG) * kK) {
         for (int r = 0; r < kK; ++r)
             for (int i = 0; i < kT; ++i) {
                 const double t = std::clamp(-1.0 + 2.0 * i / (kT - 1), -1.0, 1.0);
@@ -51,6 +57,16 @@ struct VmfTables {
                 const size_t k = size_t(r) * kT + size_t(i);
                 Ccum[k] = Ccum[k - 1] + 0.5 * dt * (double(C[k - 1]) + double(C[k]));
             }
+        static_assert(kT - 2 <= 255, "guide entries are bytes");
+        for (int r = 0; r < kK; ++r) {
+            const double *cum = &Ccum[size_t(r) * kT];
+            int col = 0;
+            for (int g = 0; g < kG; ++g) {
+                const double target = double(g) / kG * cum[kT - 1];
+                while (col < kT - 2 && cum[col + 1] <= target) ++col;
+                guide[size_t(r) * kG + size_t(g)] = uint8_t(col);
+            }
+        }
     }
     static float row(double kappa) {
         const double q = std::sqrt(std::max(0.0, kappa)), s = std::isinf(kappa) ? 1.0 : q / (q + kRowScale);
@@ -79,8 +95,13 @@ struct VmfTables {
         const float *c = &C[size_t(r) * kT];
         const double target = std::min(v, 1.0 - 1e-12) * cum[kT - 1];
         // The first column whose end is past the target: a column of zero mass is never chosen.
-        const int i = int(std::upper_bound(cum + 1, cum + kT, target) - cum) - 1;
-        const int col = std::clamp(i, 0, kT - 2);
+        // The column from the row's guide (the one holding target's share of the row, kG cells of
+        // equal mass), then the few steps to it; the same column as std::upper_bound over cum[1 ..
+        // kT), whose binary search over a table beyond L1 cost a cache access per step.
+        const int g = cum[kT - 1] > 0.0 ? std::clamp(int(target / cum[kT - 1] * kG), 0, kG - 1) : 0;
+        int col = guide[size_t(r) * kG + size_t(g)];
+        while (col > 0 && cum[col] > target) --col;
+        while (col < kT - 2 && cum[col + 1] <= target) ++col;
         const double dt = 2.0 / (kT - 1), a = c[col], b = c[col + 1], m = (target - cum[col]) / dt;
         // Density a + (b − a) x on x ∈ [0, 1] (times dt): a x + (b − a) x² / 2 = m.
         double x;
@@ -97,7 +118,7 @@ struct VmfTables {
     }
 };
 
-const VmfTables &vmf_tables() {
+[[gnu::always_inline]] inline const VmfTables &vmf_tables() {  // the hot loops: no call for the guard check
     static const VmfTables t;
     return t;
 }
@@ -134,12 +155,11 @@ inline __m128 lambda4(bool ggx, __m128 alpha, __m128 a2, __m128 z) {
     return _mm_and_ps(_mm_cmplt_ps(a, _mm_set1_ps(1.6f)), _mm_div_ps(num, den));
 }
 
-/// The visible form's weights of four lobes at cosines lo = μ_j·ωo: c_j C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j)
-/// (view_weight: the same bilinear lookup of the C table, four lanes at once; each lane's row and
-/// its fraction are the lobe's, crow = row · kT and cfy); lanes with c = 0 or lo <= 0 give 0.
-inline __m128 visible_weights(const float *c, const int *crow, const float *cfy, const float *inv_cz, __m128 lo) {
+/// C(t_j, κ_j) of four lobes at cosines t (VmfTables::lookup, four lanes at once; each lane's
+/// row and its fraction are the lobe's: crow = row · kT and cfy).
+inline __m128 clamped_cosine4(const int *crow, const float *cfy, __m128 t) {
     constexpr int kT = VmfTables::kT;
-    const __m128 x = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_add_ps(lo, _mm_set1_ps(1.f)), _mm_set1_ps(0.5f * (kT - 1))),
+    const __m128 x = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_add_ps(t, _mm_set1_ps(1.f)), _mm_set1_ps(0.5f * (kT - 1))),
                                            _mm_setzero_ps()),
                                 _mm_set1_ps(float(kT - 1)));
     const __m128i i = _mm_min_epi32(_mm_cvttps_epi32(x), _mm_set1_epi32(kT - 2));
@@ -152,10 +172,19 @@ inline __m128 visible_weights(const float *c, const int *crow, const float *cfy,
     const __m128 b0 = _mm_setr_ps(C[k[0] + kT], C[k[1] + kT], C[k[2] + kT], C[k[3] + kT]);
     const __m128 b1 = _mm_setr_ps(C[k[0] + kT + 1], C[k[1] + kT + 1], C[k[2] + kT + 1], C[k[3] + kT + 1]);
     const __m128 one = _mm_set1_ps(1.f), gx = _mm_sub_ps(one, fx);
-    const __m128 v = _mm_add_ps(_mm_mul_ps(_mm_sub_ps(one, fy), _mm_add_ps(_mm_mul_ps(gx, a0), _mm_mul_ps(fx, a1))),
-                                _mm_mul_ps(fy, _mm_add_ps(_mm_mul_ps(gx, b0), _mm_mul_ps(fx, b1))));
+    return _mm_add_ps(_mm_mul_ps(_mm_sub_ps(one, fy), _mm_add_ps(_mm_mul_ps(gx, a0), _mm_mul_ps(fx, a1))),
+                      _mm_mul_ps(fy, _mm_add_ps(_mm_mul_ps(gx, b0), _mm_mul_ps(fx, b1))));
+}
+
+/// The visible form's weights of four lobes at cosines lo = μ_j·ωo: c_j C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j)
+/// (view_weight); lanes with c = 0 give 0, and so do lanes with lo <= 0 where facing (microfacet
+/// lobes, which need μ_j·ωo > 0; a Lambertian lobe's projected area is positive beyond it).
+inline __m128 visible_weights(const float *c, const int *crow, const float *cfy, const float *inv_cz, __m128 lo,
+                              bool facing = true) {
+    const __m128 v = clamped_cosine4(crow, cfy, lo);
     const __m128 cv = _mm_load_ps(c);
-    const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(cv, _mm_setzero_ps()), _mm_cmpgt_ps(lo, _mm_setzero_ps()));
+    __m128 ok = _mm_cmpgt_ps(cv, _mm_setzero_ps());
+    if (facing) ok = _mm_and_ps(ok, _mm_cmpgt_ps(lo, _mm_setzero_ps()));
     return _mm_and_ps(ok, _mm_mul_ps(_mm_mul_ps(cv, v), _mm_load_ps(inv_cz)));
 }
 
@@ -448,6 +477,7 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             B.alpha[q] = l.alpha, B.a2[q] = l.alpha * l.alpha, B.inv_a2[q] = l.inv_a2, B.d_norm[q] = l.d_norm;
             const int r = std::min(int(l.krow), VmfTables::kK - 2);
             B.crow[q] = r * VmfTables::kT, B.cfy[q] = l.krow - float(r), B.inv_cz[q] = 1.f / l.cz;
+            B.inv_mass[q] = l.inv_mass;
         }
     }
     m_first_block.push_back(uint32_t(m_blocks.size()));
@@ -549,9 +579,44 @@ const float *SvLobeBrdf::lambert_weights(size_t patch, const Vec3 &wo) const {
     const auto [b, e] = lobes(patch);
     const size_t n = std::min<size_t>(size_t(e - b), LambertWoCache::kMax);
     c.key.serial = 0;  // invalid while being filled
-    for (size_t j = 0; j < n; ++j) c.v[j] = view_weight(b[j], wo);
+    if (m_visible) {
+        // Four lobes at a time from the patch's blocks (lane q of block k is lobe 4k + q; padding
+        // lanes have c = 0 and give 0): view_weight's c_j C(μ_j·ωo, κ_j) / C(μ_j,z, κ_j), unmasked
+        // where μ_j·ωo <= 0 (a Lambertian lobe's projected area towards ωo stays positive there).
+        const uint32_t first = m_first_block[patch];
+        const uint32_t nb = std::min<uint32_t>(m_first_block[patch + 1] - first, LambertWoCache::kMax / 4);
+        const __m128 ox = _mm_set1_ps(wo.x), oy = _mm_set1_ps(wo.y), oz = _mm_set1_ps(wo.z);
+        for (uint32_t k = 0; k < nb; ++k) {
+            const LobeBlock &B = m_blocks[first + k];
+            const __m128 lo = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_load_ps(B.mx), ox), _mm_mul_ps(_mm_load_ps(B.my), oy)),
+                                         _mm_mul_ps(_mm_load_ps(B.mz), oz));
+            _mm_storeu_ps(c.v + 4 * k, visible_weights(B.c, B.crow, B.cfy, B.inv_cz, lo, false));
+        }
+    } else {
+        for (size_t j = 0; j < n; ++j) c.v[j] = view_weight(b[j], wo);
+    }
     c.key.set(m_serial, uint32_t(patch), wo);
     return c.v;
+}
+
+/// The sums of eval_pdf_lambert in the visible form, four lobes at a time (the weights vw in
+/// lambert_weights' block order): Σ w_j C(μ_j·ωi, κ_j), Σ w_j C inv_mass_j and Σ w_j.
+void SvLobeBrdf::lambert_sums(size_t patch, const float *vw, const Vec3 &wi, float &sum, float &psum,
+                              float &ptot) const {
+    const uint32_t first = m_first_block[patch];
+    const uint32_t nb = std::min<uint32_t>(m_first_block[patch + 1] - first, LambertWoCache::kMax / 4);
+    const __m128 ix = _mm_set1_ps(wi.x), iy = _mm_set1_ps(wi.y), iz = _mm_set1_ps(wi.z);
+    __m128 s = _mm_setzero_ps(), ps = _mm_setzero_ps(), pt = _mm_setzero_ps();
+    for (uint32_t k = 0; k < nb; ++k) {
+        const LobeBlock &B = m_blocks[first + k];
+        const __m128 li = _mm_add_ps(_mm_add_ps(_mm_mul_ps(_mm_load_ps(B.mx), ix), _mm_mul_ps(_mm_load_ps(B.my), iy)),
+                                     _mm_mul_ps(_mm_load_ps(B.mz), iz));
+        const __m128 v = _mm_loadu_ps(vw + 4 * k), vc = _mm_mul_ps(v, clamped_cosine4(B.crow, B.cfy, li));
+        s = _mm_add_ps(s, vc);
+        ps = _mm_add_ps(ps, _mm_mul_ps(vc, _mm_load_ps(B.inv_mass)));
+        pt = _mm_add_ps(pt, v);
+    }
+    sum = hsum(s), psum = hsum(ps), ptot = hsum(pt);
 }
 
 Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
@@ -561,14 +626,18 @@ Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, c
     const Lobe *e = b + std::min<ptrdiff_t>(e0 - b, LambertWoCache::kMax);
     const float *vw = lambert_weights(patch, wo);
     float sum = 0.f, psum = 0.f, ptot = 0.f;
-    for (const Lobe *l = b; l != e; ++l) {
-        const float v = vw[l - b];
-        if (!(v > 0.f)) continue;
-        const float ti = dot(l->mu, wi);
-        ptot += v;
-        const float c = VmfTables::lookup(tab.C, ti, l->krow);
-        sum += v * c;
-        psum += v * c * l->inv_mass;
+    if (m_visible) {
+        lambert_sums(patch, vw, wi, sum, psum, ptot);
+    } else {
+        for (const Lobe *l = b; l != e; ++l) {
+            const float v = vw[l - b];
+            if (!(v > 0.f)) continue;
+            const float ti = dot(l->mu, wi);
+            ptot += v;
+            const float c = VmfTables::lookup(tab.C, ti, l->krow);
+            sum += v * c;
+            psum += v * c * l->inv_mass;
+        }
     }
     if (pdf) *pdf = ptot > 0.f ? psum / ptot : 0.f;
     if (!(sum > 0.f)) return Spectrum(0.f);
@@ -651,8 +720,9 @@ bool SvLobeBrdf::sample_microfacet(const Vec3 &mu, float alpha, const Vec3 &wo, 
     const float ux = std::min(u.x, 0x1.fffffep-1f), a2 = alpha * alpha;
     const float tan2 = m_base.type == MicrofacetType::GGX ? a2 * ux / (1.f - ux) : -a2 * std::log1p(-ux);
     const float ct = 1.f / std::sqrt(1.f + tan2), st = std::sqrt(std::max(0.f, 1.f - ct * ct));
-    const float phi = 2.f * kPiF * u.y;
-    const Vec3 m = normalize(Frame(mu).to_world(Vec3(st * std::cos(phi), st * std::sin(phi), ct)));
+    float sp, cp;
+    sincos_0_2pi(2.f * kPiF * u.y, sp, cp);  // polynomials, no libm call (core/float_trig.h)
+    const Vec3 m = normalize(Frame(mu).to_world(Vec3(st * cp, st * sp, ct)));
     const float d = dot(wo, m);
     if (!(d > 0.f)) return false;
     wi = normalize(m * (2.f * d) - wo);
@@ -675,8 +745,10 @@ bool SvLobeBrdf::sample_direction(const ShadingContext &ctx, const Vec3 &wo, flo
         // ωi is the lobe's pdf term C(μ·ωi, κ_j) · inv_mass exactly (the vMF-convolved clamped
         // cosine: a normal drawn from the lobe, then a cosine-weighted direction about it).
         const float t = vmf_tables().sample_t(l->krow, u.x);
-        const float st = std::sqrt(std::max(0.f, 1.f - t * t)), phi = 2.f * kPiF * u.y;
-        wi = normalize(Frame(l->mu).to_world(Vec3(st * std::cos(phi), st * std::sin(phi), t)));
+        const float st = std::sqrt(std::max(0.f, 1.f - t * t));
+        float sp, cp;
+        sincos_0_2pi(2.f * kPiF * u.y, sp, cp);
+        wi = normalize(Frame(l->mu).to_world(Vec3(st * cp, st * sp, t)));
     }
     return wi.z > 0.f;
 }

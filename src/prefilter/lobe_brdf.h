@@ -212,6 +212,8 @@ private:
     size_t patch_index(Vec2 uv) const;
     Spectrum eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
                               float *pdf) const;
+    /// eval_pdf_lambert's sums in the visible form from the patch's blocks (lobe_brdf.cpp).
+    void lambert_sums(size_t patch, const float *vw, const Vec3 &wi, float &sum, float &psum, float &ptot) const;
     /// A lobe's weight towards ωo (P_j ∝ it): c_j v_j(ωo) of the header (Lambertian lobes, and
     /// facing microfacet lobes in the visible form).
     float view_weight(const Lobe &l, const Vec3 &wo) const;
@@ -230,7 +232,7 @@ private:
     /// c = 0 and μ = 0 (they face nothing).
     struct alignas(16) LobeBlock {
         float mx[4] = {}, my[4] = {}, mz[4] = {}, c[4] = {}, alpha[4] = {}, a2[4] = {}, inv_a2[4] = {},
-              d_norm[4] = {}, cfy[4] = {}, inv_cz[4] = {};
+              d_norm[4] = {}, cfy[4] = {}, inv_cz[4] = {}, inv_mass[4] = {};
         int crow[4] = {};  ///< the C table's row of the lobe (visible form), times its width
     };
 

@@ -19,8 +19,8 @@ typedef float F4 __attribute__((vector_size(16)));
 
 /// atan(x) for x in [0, 1], lane by lane, without a branch or a division: Abramowitz and
 /// Stegun 4.4.49, x times a polynomial of degree 8 in x² (error 2e-8; in float 1e-7, tested
-/// against std::atan).
-inline F4 atan01(F4 x) { return atan_unit_interval(x); }
+/// against std::atan), by Estrin's scheme (half Horner's chain of dependent operations).
+inline F4 atan01(F4 x) { return atan_unit_interval_estrin(x); }
 
 /// One direction's part of hemisphere_to_square_fast: the two ratios whose arctangents it needs.
 struct SquareMap {
@@ -31,13 +31,13 @@ struct SquareMap {
         ok = s2 > 0.f && std::isfinite(s2 + z);
         s = ok ? std::sqrt(s2) : 1.f;
     }
-    /// θ = atan(s / z) for s <= z, else π/2 − atan(z / s): the ratio min / max.
-    float polar_ratio() const { return ok ? std::min(s, z) / std::max(s, z) : 0.f; }
-    /// The concentric sector's angle: atan(min(|x|, |y|) / max(|x|, |y|)).
-    float sector_ratio() const {
-        const float ax = std::abs(x), ay = std::abs(y);
-        return ok ? std::min(ax, ay) / std::max(ax, ay) : 0.f;
-    }
+    /// θ = atan(s / z) for s <= z, else π/2 − atan(z / s): the ratio min / max, as its numerator
+    /// and denominator (0 / 1 where !ok: the four ratios are one vector division).
+    float polar_num() const { return ok ? std::min(s, z) : 0.f; }
+    float polar_den() const { return ok ? std::max(s, z) : 1.f; }
+    /// The concentric sector's angle: atan(min(|x|, |y|) / max(|x|, |y|)), likewise.
+    float sector_num() const { return ok ? std::min(std::abs(x), std::abs(y)) : 0.f; }
+    float sector_den() const { return ok ? std::max(std::abs(x), std::abs(y)) : 1.f; }
     /// The square coordinates from the two arctangents (selects as copysign and products with
     /// 0 / 1, which compilers do not turn into jumps: random directions defeat a predictor).
     Vec2 finish(float polar_atan, float sector_atan) const {
@@ -60,10 +60,18 @@ struct SquareMap {
 /// Both directions' square coordinates: their four arctangents as one vector.
 void hemisphere_pair_to_square(Vec3 a, Vec3 b, Vec2 &sa, Vec2 &sb) {
     const SquareMap ma(a), mb(b);
-    const F4 r = {ma.polar_ratio(), ma.sector_ratio(), mb.polar_ratio(), mb.sector_ratio()};
-    const F4 t = atan01(r);
+    const F4 num = {ma.polar_num(), ma.sector_num(), mb.polar_num(), mb.sector_num()};
+    const F4 den = {ma.polar_den(), ma.sector_den(), mb.polar_den(), mb.sector_den()};
+    const F4 t = atan01(num / den);
     sa = ma.finish(t[0], t[1]);
     sb = mb.finish(t[2], t[3]);
+}
+
+/// Four floats from an unaligned address.
+inline F4 load4(const float *p) {
+    F4 v;
+    std::memcpy(&v, p, sizeof v);
+    return v;
 }
 
 /// Image::rgb, inline (a table lookup reads 4 or 16 texels).
@@ -122,7 +130,7 @@ Spectrum ScalingTables::eval_S(Vec3 wi, Vec3 wo) const {
     axis_lerp(so.y, N, oy[0], oy[1], toy);
     const float wix[2] = {1.f - tix, tix}, wiy[2] = {1.f - tiy, tiy}, wox[2] = {1.f - tox, tox},
                 woy[2] = {1.f - toy, toy};
-    if (S.channels != 3) {  // a grey table
+    if (S.channels != 3 || N < 2) {  // a grey table, or one bin (no pairs of texels)
         Spectrum s(0.f);
         for (int a = 0; a < 2; ++a)
             for (int b = 0; b < 2; ++b)
@@ -132,20 +140,27 @@ Spectrum ScalingTables::eval_S(Vec3 wi, Vec3 wo) const {
         return Spectrum(std::max(s.r, 0.f), std::max(s.g, 0.f), std::max(s.b, 0.f));  // extrapolated: >= 0
     }
     // The 16 texels of the quadrilinear blend straight from the RGB data, without branches on
-    // zero weights (the tables are finite, checked at load: a zero weight adds exactly 0).
+    // zero weights (the tables are finite, checked at load: a zero weight adds exactly 0). The
+    // two texels of a row pair (ix, ix + 1) are 6 adjacent floats, read as two unaligned vectors
+    // p[0..3] and p[2..5] (never past the pair): the first's lanes 0-2 are texel ix's RGB, the
+    // second's lanes 1-3 texel ix + 1's. Four accumulators (one per ωo corner) keep the chains
+    // of dependent additions short; the unused lanes are summed and dropped.
     const float *data = S.data.data();
     const size_t row = size_t(S.width) * 3;
-    float r = 0.f, g = 0.f, b = 0.f;
+    F4 acc_lo[4], acc_hi[4];
     for (int a = 0; a < 2; ++a)
         for (int bb = 0; bb < 2; ++bb) {
+            const int k = 2 * a + bb;
             const float wo_w = wox[a] * woy[bb];
-            for (int c = 0; c < 2; ++c)
-                for (int d = 0; d < 2; ++d) {
-                    const float w = wo_w * wix[c] * wiy[d];
-                    const float *p = data + size_t(oy[bb] * N + iy[d]) * row + size_t(ox[a] * N + ix[c]) * 3;
-                    r += p[0] * w, g += p[1] * w, b += p[2] * w;
-                }
+            const float wl = wo_w * wix[0], wh = wo_w * wix[1];
+            const float *p0 = data + size_t(oy[bb] * N + iy[0]) * row + size_t(ox[a] * N + ix[0]) * 3;
+            const float *p1 = p0 + row;  // iy[1] = iy[0] + 1
+            acc_lo[k] = load4(p0) * (wl * wiy[0]) + load4(p1) * (wl * wiy[1]);
+            acc_hi[k] = load4(p0 + 2) * (wh * wiy[0]) + load4(p1 + 2) * (wh * wiy[1]);
         }
+    const F4 lo = (acc_lo[0] + acc_lo[1]) + (acc_lo[2] + acc_lo[3]);
+    const F4 hi = (acc_hi[0] + acc_hi[1]) + (acc_hi[2] + acc_hi[3]);
+    const float r = lo[0] + hi[1], g = lo[1] + hi[2], b = lo[2] + hi[3];
     return Spectrum(std::max(r, 0.f), std::max(g, 0.f), std::max(b, 0.f));  // extrapolated past the centres: >= 0
 }
 

@@ -16,18 +16,6 @@
 
 namespace meso {
 
-/// atan_unit_interval (core/math.h: A&S 4.4.49, a in [0, 1]) with its degree-8 polynomial in
-/// z = a^2 evaluated by Estrin's scheme: pairs of coefficients, then powers z^2, z^4, z^8, in
-/// about half the dependent multiply-adds of Horner's (the sampler set-ups wait on it). The same
-/// coefficients; the rounding differs from Horner's by a few ulp (FloatTrig.WithinStatedError).
-inline float atan_unit_interval_estrin(float a) {
-    const float z = a * a, z2 = z * z, z4 = z2 * z2, z8 = z4 * z4;
-    const float q0 = -0.3333314528f * z + 1.f, q1 = -0.1420889944f * z + 0.1999355085f;
-    const float q2 = -0.0752896400f * z + 0.1065626393f, q3 = -0.0161657367f * z + 0.0429096138f;
-    const float p = (q0 + q1 * z2) + (q2 + q3 * z2) * z4 + 0.0028662257f * z8;
-    return a * p;
-}
-
 /// atan2(y, x) in [-pi, pi]; 0 for (0, 0).
 inline float atan2_approx(float y, float x) {
     const float ax = std::abs(x), ay = std::abs(y);
