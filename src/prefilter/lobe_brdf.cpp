@@ -36,6 +36,9 @@ struct VmfTables {
     /// fraction g / kG of the row's mass (sample_t starts there).
     static constexpr int kG = 128;
     std::vector<uint8_t> guide;
+    /// The bilinear cells of C, one 16-byte vector each: Cq[4 (r (kT − 1) + i) + {0, 1, 2, 3}] =
+    /// C[r][i], C[r][i + 1], C[r + 1][i], C[r + 1][i + 1] (clamped_cosine4: one load a lane).
+    std::vector<float> Cq;
     VmfTables() : C(size_t(kT) * kK), H(size_t(kT) * kK), Ccum(size_t(kT) * kK), guide(size_t(kG) * kK) {
         for (int r = 0; r < kK; ++r)
             for (int i = 0; i < kT; ++i) {
@@ -56,6 +59,13 @@ struct VmfTables {
             for (int i = 1; i < kT; ++i) {
                 const size_t k = size_t(r) * kT + size_t(i);
                 Ccum[k] = Ccum[k - 1] + 0.5 * dt * (double(C[k - 1]) + double(C[k]));
+            }
+        Cq.resize(size_t(kK - 1) * (kT - 1) * 4);
+        for (int r = 0; r + 1 < kK; ++r)
+            for (int i = 0; i + 1 < kT; ++i) {
+                float *q = &Cq[4 * (size_t(r) * (kT - 1) + size_t(i))];
+                const size_t a = size_t(r) * kT + size_t(i), b = a + kT;
+                q[0] = C[a], q[1] = C[a + 1], q[2] = C[b], q[3] = C[b + 1];
             }
         static_assert(kT - 2 <= 255, "guide entries are bytes");
         for (int r = 0; r < kK; ++r) {
@@ -156,7 +166,8 @@ inline __m128 lambda4(bool ggx, __m128 alpha, __m128 a2, __m128 z) {
 }
 
 /// C(t_j, κ_j) of four lobes at cosines t (VmfTables::lookup, four lanes at once; each lane's
-/// row and its fraction are the lobe's: crow = row · kT and cfy).
+/// row and its fraction are the lobe's: crow = row · (kT − 1) and cfy). A lane's four corners
+/// are one vector of the quad table Cq, the four vectors transposed into corner vectors.
 inline __m128 clamped_cosine4(const int *crow, const float *cfy, __m128 t) {
     constexpr int kT = VmfTables::kT;
     const __m128 x = _mm_min_ps(_mm_max_ps(_mm_mul_ps(_mm_add_ps(t, _mm_set1_ps(1.f)), _mm_set1_ps(0.5f * (kT - 1))),
@@ -166,11 +177,10 @@ inline __m128 clamped_cosine4(const int *crow, const float *cfy, __m128 t) {
     const __m128 fx = _mm_sub_ps(x, _mm_cvtepi32_ps(i)), fy = _mm_loadu_ps(cfy);
     alignas(16) int k[4];
     _mm_store_si128(reinterpret_cast<__m128i *>(k), _mm_add_epi32(i, _mm_loadu_si128(reinterpret_cast<const __m128i *>(crow))));
-    const float *C = vmf_tables().C.data();
-    const __m128 a0 = _mm_setr_ps(C[k[0]], C[k[1]], C[k[2]], C[k[3]]);
-    const __m128 a1 = _mm_setr_ps(C[k[0] + 1], C[k[1] + 1], C[k[2] + 1], C[k[3] + 1]);
-    const __m128 b0 = _mm_setr_ps(C[k[0] + kT], C[k[1] + kT], C[k[2] + kT], C[k[3] + kT]);
-    const __m128 b1 = _mm_setr_ps(C[k[0] + kT + 1], C[k[1] + kT + 1], C[k[2] + kT + 1], C[k[3] + kT + 1]);
+    const float *Cq = vmf_tables().Cq.data();
+    __m128 a0 = _mm_loadu_ps(Cq + 4 * size_t(k[0])), a1 = _mm_loadu_ps(Cq + 4 * size_t(k[1]));
+    __m128 b0 = _mm_loadu_ps(Cq + 4 * size_t(k[2])), b1 = _mm_loadu_ps(Cq + 4 * size_t(k[3]));
+    _MM_TRANSPOSE4_PS(a0, a1, b0, b1);  // now C[r][i], C[r][i + 1], C[r + 1][i], C[r + 1][i + 1] by lane
     const __m128 one = _mm_set1_ps(1.f), gx = _mm_sub_ps(one, fx);
     return _mm_add_ps(_mm_mul_ps(_mm_sub_ps(one, fy), _mm_add_ps(_mm_mul_ps(gx, a0), _mm_mul_ps(fx, a1))),
                       _mm_mul_ps(fy, _mm_add_ps(_mm_mul_ps(gx, b0), _mm_mul_ps(fx, b1))));
@@ -476,7 +486,7 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
             B.mx[q] = l.mu.x, B.my[q] = l.mu.y, B.mz[q] = l.mu.z, B.c[q] = l.c;
             B.alpha[q] = l.alpha, B.a2[q] = l.alpha * l.alpha, B.inv_a2[q] = l.inv_a2, B.d_norm[q] = l.d_norm;
             const int r = std::min(int(l.krow), VmfTables::kK - 2);
-            B.crow[q] = r * VmfTables::kT, B.cfy[q] = l.krow - float(r), B.inv_cz[q] = 1.f / l.cz;
+            B.crow[q] = r * (VmfTables::kT - 1), B.cfy[q] = l.krow - float(r), B.inv_cz[q] = 1.f / l.cz;
             B.inv_mass[q] = l.inv_mass;
         }
     }

@@ -96,8 +96,8 @@
 // Not reciprocal (neither is eq. 5). Cost: one pass over the patch's lobes (≤ 6 by default; the
 // microfacet pass four lobes per SSE step, one vector exp for Beckmann), the Fresnel lookup once;
 // sample adds one pass for the choice and one eval_pdf pass at the sampled direction. Measured
-// (docs/performance.md): a `prefiltered` shading sample costs 0.75x a Beckmann conductor base's,
-// 1.9x a GGX one's (the S lookups are most of the rest), 30x a Lambertian's.
+// (docs/performance.md): a `prefiltered` shading sample costs 0.9x a Beckmann conductor base's,
+// 1.9x a GGX one's (the S lookups are most of the rest), 26x a Lambertian's.
 #pragma once
 #include <memory>
 #include <string>
@@ -233,7 +233,7 @@ private:
     struct alignas(16) LobeBlock {
         float mx[4] = {}, my[4] = {}, mz[4] = {}, c[4] = {}, alpha[4] = {}, a2[4] = {}, inv_a2[4] = {},
               d_norm[4] = {}, cfy[4] = {}, inv_cz[4] = {}, inv_mass[4] = {};
-        int crow[4] = {};  ///< the C table's row of the lobe (visible form), times its width
+        int crow[4] = {};  ///< the C table's row of the lobe (visible form), times its cells a row (kT − 1)
     };
 
     LobeBase m_base;
