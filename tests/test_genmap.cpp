@@ -482,3 +482,46 @@ TEST(GenMapCli, ListAndErrors) {
     EXPECT_FALSE(fs::exists(tmp("cli_fbm.exr")));
     EXPECT_FALSE(fs::exists(tmp("cli_fbm.json")));
 }
+
+TEST(Genmap, FbmIsThePerlinSumItDocuments) {
+    // fbm texel by texel against its definition, written out here without the generator's
+    // gradient tables (which it builds for octaves whose lattice is smaller than the map, and
+    // must read back as the same values): Σ_k amplitude gain^k noise_k(f_k (i / w, j / h)),
+    // f_k = frequency lacunarity^k, Perlin gradient noise with unit gradients at angle 2π ·
+    // (hash >> 11) 2^-53 per lattice point (periodic in f_k), quintic fade, scaled by √2.
+    // Configurations where some octaves are tabulated and some are not; exact equality.
+    struct Case { int size, frequency, lacunarity, octaves; uint64_t seed; };
+    for (const Case c : {Case{64, 4, 2, 6, 1}, Case{48, 3, 3, 4, 7}, Case{40, 1, 2, 7, 12345}}) {
+        const GeneratedMap g = generate_height_map("fbm", {{"size", std::to_string(c.size)}, {"frequency", std::to_string(c.frequency)},
+                                                          {"lacunarity", std::to_string(c.lacunarity)}, {"octaves", std::to_string(c.octaves)},
+                                                          {"gain", "0.5"}, {"amplitude", "0.02"}, {"seed", std::to_string(c.seed)}});
+        const uint64_t seed = mix_bits(c.seed ^ 0x5eedf00dULL);
+        auto noise = [&](double x, double y, int64_t p, uint64_t layer) {
+            const double fx = std::floor(x), fy = std::floor(y), dx = x - fx, dy = y - fy;
+            const int64_t i = int64_t(fx), j = int64_t(fy);
+            const uint64_t key = hash_combine(seed, layer);
+            auto grad = [&](int64_t a, int64_t b, double ox, double oy) {
+                a = ((a % p) + p) % p, b = ((b % p) + p) % p;
+                const double angle = double(hash_combine(key, uint64_t(a) * 0x100000001b3ULL ^ uint64_t(b)) >> 11) *
+                                     0x1p-53 * 2 * 3.14159265358979323846;
+                return std::cos(angle) * ox + std::sin(angle) * oy;
+            };
+            auto fade = [](double t) { return t * t * t * (t * (t * 6 - 15) + 10); };
+            const double sx = fade(dx), sy = fade(dy);
+            const double n00 = grad(i, j, dx, dy), n10 = grad(i + 1, j, dx - 1, dy);
+            const double n01 = grad(i, j + 1, dx, dy - 1), n11 = grad(i + 1, j + 1, dx - 1, dy - 1);
+            const double a = n00 + sx * (n10 - n00), b = n01 + sx * (n11 - n01);
+            return double(Sqrt2) * (a + sy * (b - a));
+        };
+        int diff = 0;
+        for (int j = 0; j < c.size; ++j)
+            for (int i = 0; i < c.size; ++i) {
+                double sum = 0, amp = 0.02;
+                int64_t f = c.frequency;
+                for (int k = 0; k < c.octaves; ++k, f *= c.lacunarity, amp *= 0.5)
+                    sum += amp * noise(double(i) / c.size * f, double(j) / c.size * f, f, uint64_t(k));
+                diff += g.height.at(i, j) != float(sum);
+            }
+        EXPECT_EQ(diff, 0) << "size " << c.size << " frequency " << c.frequency << " lacunarity " << c.lacunarity;
+    }
+}

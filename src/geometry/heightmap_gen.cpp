@@ -148,11 +148,20 @@ public:
         double fx = std::floor(x), fy = std::floor(y);
         int64_t i = int64_t(fx), j = int64_t(fy);
         double dx = x - fx, dy = y - fy;
-        uint64_t key = hash_combine(m_seed, layer);
+        const uint64_t key = hash_combine(m_seed, layer);
+        const Table *t = layer < m_tables.size() && m_tables[layer].px == px && m_tables[layer].py == py
+                             ? &m_tables[layer] : nullptr;
+        auto wrap = [](int64_t a, int64_t p) {  // a mod p; corners are mostly in [0, p]: no division there
+            return a >= 0 && a < p ? a : a == p ? 0 : ((a % p) + p) % p;
+        };
         auto g = [&](int64_t a, int64_t b, double ox, double oy) {
-            a = ((a % px) + px) % px;
-            b = ((b % py) + py) % py;
-            double angle = double(hash_combine(key, uint64_t(a) * 0x100000001b3ULL ^ uint64_t(b)) >> 11) * 0x1p-53 * 2 * kPi;
+            a = wrap(a, px);
+            b = wrap(b, py);
+            if (t) {
+                const double *cs = &t->cos_sin[2 * (size_t(b) * size_t(px) + size_t(a))];
+                return cs[0] * ox + cs[1] * oy;
+            }
+            const double angle = gradient_angle(key, a, b);
             return std::cos(angle) * ox + std::sin(angle) * oy;
         };
         auto fade = [](double t) { return t * t * t * (t * (t * 6 - 15) + 10); };
@@ -162,9 +171,34 @@ public:
         double a = n00 + sx * (n10 - n00), b = n01 + sx * (n11 - n01);
         return Sqrt2 * (a + sy * (b - a));  // unit gradients reach at most sqrt(1/2)
     }
+    /// Tabulates the gradients of `layer`'s lattice with periods (px, py): operator() then reads
+    /// each corner's cosine and sine instead of computing them (the same values: a map is
+    /// bit-identical either way). Worth it where the lattice has fewer points than the map has
+    /// corner lookups (4 a texel); not thread-safe (call before the parallel fill).
+    void tabulate(int64_t px, int64_t py, uint64_t layer) {
+        if (m_tables.size() <= layer) m_tables.resize(layer + 1);
+        Table &t = m_tables[layer];
+        t.px = px, t.py = py;
+        t.cos_sin.resize(2 * size_t(px) * size_t(py));
+        const uint64_t key = hash_combine(m_seed, layer);
+        for (int64_t b = 0; b < py; ++b)
+            for (int64_t a = 0; a < px; ++a) {
+                const double angle = gradient_angle(key, a, b);
+                double *cs = &t.cos_sin[2 * (size_t(b) * size_t(px) + size_t(a))];
+                cs[0] = std::cos(angle), cs[1] = std::sin(angle);
+            }
+    }
 
 private:
+    static double gradient_angle(uint64_t key, int64_t a, int64_t b) {
+        return double(hash_combine(key, uint64_t(a) * 0x100000001b3ULL ^ uint64_t(b)) >> 11) * 0x1p-53 * 2 * kPi;
+    }
+    struct Table {
+        int64_t px = 0, py = 0;
+        std::vector<double> cos_sin;  ///< per lattice point (a, b), at 2 (b px + a): cos, sin of its angle
+    };
     uint64_t m_seed;
+    std::vector<Table> m_tables;  ///< by layer; px = 0: none
 };
 
 struct FbmSpec {
@@ -179,6 +213,14 @@ double fbm(const PeriodicNoise &noise, const FbmSpec &s, double u, double v) {
     int64_t f = s.frequency;
     for (int k = 0; k < s.octaves; ++k, f *= s.lacunarity, amp *= s.gain) sum += amp * noise(u * f, v * f, f, f, k);
     return sum;
+}
+
+/// Tabulates the gradients of fbm's octaves on a w x h map where that is cheaper than computing
+/// them per corner (a lattice of at most w h / 4 points, and at most 2^20: 16 MB).
+void tabulate_fbm(PeriodicNoise &noise, const FbmSpec &s, int w, int h) {
+    int64_t f = s.frequency;
+    for (int k = 0; k < s.octaves; ++k, f *= s.lacunarity)
+        if (f * f <= int64_t(w) * h / 4 && f * f <= (int64_t(1) << 20)) noise.tabulate(f, f, uint64_t(k));
 }
 
 FbmSpec read_fbm(Params &p, const std::string &prefix) {
@@ -200,6 +242,7 @@ GeneratedMap gen_fbm(Params &p) {
     p.size(w, h);
     PeriodicNoise noise(p.seed());
     FbmSpec s = read_fbm(p, "");
+    tabulate_fbm(noise, s, w, h);
     g.height = fill_map(w, h, [&](int i, int j) { return fbm(noise, s, double(i) / w, double(j) / h); });
     int64_t top = int64_t(s.frequency) * int64_t(std::pow(double(s.lacunarity), s.octaves - 1));
     if (2 * top > std::min(w, h))
@@ -637,6 +680,7 @@ GeneratedMap gen_relief(Params &p) {
     PeriodicNoise noise(p.seed());
     double scale = p.real("scale", -1e6, 1e6);
     FbmSpec s = read_fbm(p, "noise_");
+    if (s.amplitude > 0) tabulate_fbm(noise, s, w, h);
 
     // Image pixel (x, y) is taken as the vertex at (x / iw, y / ih) (the height-map
     // convention), so an output of the image's size copies it exactly; other sizes
