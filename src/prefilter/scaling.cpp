@@ -7,6 +7,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <emmintrin.h>
 #include <fmt/format.h>
 #include <mutex>
 #include "core/error.h"
@@ -21,6 +22,28 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+/// s[q] += a[q] (b null) or s[q] += a[q] b[q], q < n, two doubles an SSE2 step (the compiler
+/// leaves these loops scalar at -O2): each entry gets the same operations as the scalar loop.
+void accumulate(double *s, const double *a, const double *b, size_t n) {
+    size_t q = 0;
+    if (b) {
+        for (; q + 2 <= n; q += 2)
+            _mm_storeu_pd(s + q, _mm_add_pd(_mm_loadu_pd(s + q), _mm_mul_pd(_mm_loadu_pd(a + q), _mm_loadu_pd(b + q))));
+        for (; q < n; ++q) s[q] += a[q] * b[q];
+    } else {
+        for (; q + 2 <= n; q += 2) _mm_storeu_pd(s + q, _mm_add_pd(_mm_loadu_pd(s + q), _mm_loadu_pd(a + q)));
+        for (; q < n; ++q) s[q] += a[q];
+    }
+}
+
+/// x[q] *= f, q < n (as accumulate).
+void scale_by(double *x, double f, size_t n) {
+    size_t q = 0;
+    const __m128d v = _mm_set1_pd(f);
+    for (; q + 2 <= n; q += 2) _mm_storeu_pd(x + q, _mm_mul_pd(_mm_loadu_pd(x + q), v));
+    for (; q < n; ++q) x[q] *= f;
+}
 
 int perfect_square_root(int k) {
     const int g = int(std::lround(std::sqrt(double(k))));
@@ -121,6 +144,7 @@ struct ScalingEstimator::Task {
     std::vector<size_t> low_lines, low_rejected, low_leaked;
     std::vector<double> t_low;
     std::vector<double> w_low;  ///< per level: Σ |Q| / |P| over its accepted h_low lines
+    std::vector<double> dx, dy; ///< add_pair's differences
 
     Task(ScalingEstimator &e, const std::vector<ScalingEstimator *> &g, size_t t, uint64_t seed)
         : est(e), group(g), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
@@ -341,21 +365,36 @@ struct ScalingEstimator::Task {
 
     /// Adds one line's terms to this task's slice of `sum`.
     void add_line(std::vector<double> &sum, const std::vector<double> &line) {
-        for (size_t q = 0; q < size_t(B) * 3; ++q) sum[base_idx + q] += line[q];
+        accumulate(sum.data() + base_idx, line.data(), nullptr, size_t(B) * 3);
     }
     /// Pair terms (scaling.h, "Standard errors") of lines x (numerator) and y (denominator):
     /// Σ (x0 - x1)² into sq, Σ (y0 - y1)² into dsq, Σ (x0 - x1)(y0 - y1) into cross; a null
-    /// partner (the unpaired last line) counts as 0; null sq / dsq / cross skip that term.
+    /// partner (the unpaired last line) counts as 0; null sq / dsq / cross skip that term. The
+    /// differences first, then one plain loop per sum (no tests inside: the compiler vectorises
+    /// them); every entry gets the same operations as one fused loop would give it.
     void add_pair(const std::vector<double> *x0, const std::vector<double> *x1, const std::vector<double> *y0,
                   const std::vector<double> *y1, std::vector<double> *sq, std::vector<double> *dsq,
                   std::vector<double> *cross) {
-        for (size_t q = 0; q < size_t(B) * 3; ++q) {
-            const double dx = x0 ? (*x0)[q] - (x1 ? (*x1)[q] : 0.0) : 0.0;
-            const double dy = y0 ? (*y0)[q] - (y1 ? (*y1)[q] : 0.0) : 0.0;
-            if (sq) (*sq)[base_idx + q] += dx * dx;
-            if (dsq) (*dsq)[base_idx + q] += dy * dy;
-            if (cross) (*cross)[base_idx + q] += dx * dy;
-        }
+        const size_t n = size_t(B) * 3;
+        auto diff = [n](const std::vector<double> *a, const std::vector<double> *b, std::vector<double> &out) {
+            out.resize(n);
+            double *o = out.data();
+            if (!a) {
+                std::fill(o, o + n, 0.0);
+            } else if (!b) {
+                const double *pa = a->data();
+                for (size_t q = 0; q < n; ++q) o[q] = pa[q] - 0.0;
+            } else {
+                const double *pa = a->data(), *pb = b->data();
+                for (size_t q = 0; q < n; ++q) o[q] = pa[q] - pb[q];
+            }
+        };
+        if (sq || cross) diff(x0, x1, dx);
+        if (dsq || cross) diff(y0, y1, dy);
+        const double *px = dx.data(), *py = dy.data();
+        if (sq) accumulate(sq->data() + base_idx, px, px, n);
+        if (dsq) accumulate(dsq->data() + base_idx, py, py, n);
+        if (cross) accumulate(cross->data() + base_idx, px, py, n);
     }
     /// Both fields' lines in consecutive pairs: sums, pair differences and, when both fields
     /// trace the same number of lines (line k shares its random numbers), the cross terms. Each
@@ -378,14 +417,11 @@ struct ScalingEstimator::Task {
                     area_orig += q_ratio;
                     // The line's weight |Q(ωo)| / |P| (scaling.h, "Weights"): 1 when Q = P.
                     if (q_ratio != 1.0)
-                        for (size_t q = 0; q < size_t(B) * 3; ++q)
-                            o[s].a[q] *= q_ratio, o[s].b[q] *= q_ratio, o[s].c[q] *= q_ratio;
+                        for (std::vector<double> *x : {&o[s].a, &o[s].b, &o[s].c}) scale_by(x->data(), q_ratio, x->size());
                     if (cv)  // g - c (scaling.h, "Control variate")
                         for (size_t q = 0; q < size_t(B) * 3; ++q) o[s].a[q] -= o[s].c[q], o[s].b[q] -= o[s].c[q];
-                    for (ScalingEstimator *e : group) {
-                        add_line(e->m_n1, o[s].a);
-                        if (ir) add_line(e->m_nir, o[s].b);
-                    }
+                    add_line(est.m_n1, o[s].a);  // the other levels copy the lead's sums (share_numerators)
+                    if (ir) add_line(est.m_nir, o[s].b);
                 }
                 if (recip) {  // g cos θo / cos θi (a rejected line: 0, as o[s])
                     for (int b = 0; b < B; ++b) {
@@ -393,10 +429,8 @@ struct ScalingEstimator::Task {
                         for (size_t q = size_t(b) * 3; q < size_t(b) * 3 + 3; ++q)
                             r[s].a[q] = o[s].a[q] * f, r[s].b[q] = ir ? o[s].b[q] * f : 0.0;
                     }
-                    for (ScalingEstimator *e : group) {
-                        add_line(e->m_r1, r[s].a);
-                        if (ir) add_line(e->m_rir, r[s].b);
-                    }
+                    add_line(est.m_r1, r[s].a);
+                    if (ir) add_line(est.m_rir, r[s].b);
                 }
                 t_orig += seconds_since(t0);
             }
@@ -407,8 +441,7 @@ struct ScalingEstimator::Task {
                 if (trace_low_line(*group[j], j, k, Kl, lb)) {
                     ++acc_low[j];
                     w_low[j] += q_ratio;
-                    if (q_ratio != 1.0)
-                        for (double &x : lb.a) x *= q_ratio;
+                    if (q_ratio != 1.0) scale_by(lb.a.data(), q_ratio, lb.a.size());
                     add_line(group[j]->m_d, lb.a);
                 }
                 t_low[j] += seconds_since(t0);
@@ -419,18 +452,35 @@ struct ScalingEstimator::Task {
             const bool whole = s == 1;
             for (size_t j = 0; j < G; ++j) {
                 ScalingEstimator &e = *group[j];
+                const bool lead = j == 0;  // the numerator-only sums: the lead's alone (share_numerators)
                 const LineBuf &l0 = l[2 * j], &l1 = l[2 * j + 1];
                 add_pair(o_pair ? &o[0].a : nullptr, o_pair && whole ? &o[1].a : nullptr, l_pair ? &l0.a : nullptr,
-                         l_pair && whole ? &l1.a : nullptr, o_pair ? &e.m_n1sq : nullptr, l_pair ? &e.m_dsq : nullptr,
-                         paired ? &e.m_n1x : nullptr);
-                if (ir && o_pair)
+                         l_pair && whole ? &l1.a : nullptr, o_pair && lead ? &e.m_n1sq : nullptr,
+                         l_pair ? &e.m_dsq : nullptr, paired ? &e.m_n1x : nullptr);
+                if (ir && o_pair && (lead || paired))
                     add_pair(&o[0].b, whole ? &o[1].b : nullptr, paired ? &l0.a : nullptr, paired && whole ? &l1.a : nullptr,
-                             &e.m_nirsq, nullptr, paired ? &e.m_nirx : nullptr);
-                if (recip && o_pair) {
+                             lead ? &e.m_nirsq : nullptr, nullptr, paired ? &e.m_nirx : nullptr);
+                if (recip && o_pair && lead) {
                     add_pair(&r[0].a, whole ? &r[1].a : nullptr, nullptr, nullptr, &e.m_r1sq, nullptr, nullptr);
                     if (ir) add_pair(&r[0].b, whole ? &r[1].b : nullptr, nullptr, nullptr, &e.m_rirsq, nullptr, nullptr);
                 }
             }
+        }
+        share_numerators();
+    }
+    /// The numerator's sums do not depend on the level: trace_lines adds them (and their pair
+    /// terms) to the lead's arrays alone, and this copies the task's slice to the other levels.
+    /// Every level traces the same tasks every round (add_round_impl), so their slices were equal
+    /// before and are equal after: the same values as adding to each.
+    void share_numerators() {
+        const size_t n = size_t(B) * 3;
+        for (size_t j = 1; j < group.size(); ++j) {
+            ScalingEstimator &e = *group[j];
+            auto copy = [&](const std::vector<double> &from, std::vector<double> &to) {
+                if (!from.empty()) std::copy_n(from.begin() + ptrdiff_t(base_idx), n, to.begin() + ptrdiff_t(base_idx));
+            };
+            copy(est.m_n1, e.m_n1), copy(est.m_n1sq, e.m_n1sq), copy(est.m_nir, e.m_nir), copy(est.m_nirsq, e.m_nirsq);
+            copy(est.m_r1, e.m_r1), copy(est.m_r1sq, e.m_r1sq), copy(est.m_rir, e.m_rir), copy(est.m_rirsq, e.m_rirsq);
         }
     }
     /// The control variate's cheap lines (scaling.h): directions and positions drawn as for

@@ -48,7 +48,9 @@
 // Levels share the original (add_round_group). The numerator does not depend on the level:
 // the levels of one model (a LoD chain) are estimated together, each line of sight on G_orig
 // traced once for all of them, and only the h_low lines per level. A chain of n levels then
-// costs one original's lines plus n h_low ones per round instead of n of each.
+// costs one original's lines plus n h_low ones per round instead of n of each. The numerator's
+// sums (and their pair terms) are accumulated in the lead level's arrays alone and copied to the
+// others after each task (the same values: every level traces the same tasks every round).
 //
 // Standard errors (what the stopping rule and the manifest report). The lines of a task are
 // taken in consecutive pairs (neighbouring strata when the positions are stratified), and each
