@@ -240,8 +240,11 @@ inline void wi_terms(const Block &B, const WoTerms &o, bool ggx, __m128 ix, __m1
         D = _mm_div_ps(dn, _mm_mul_ps(d, d));
     } else {
         const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
-        D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(_mm_mul_ps(_mm_sub_ps(zero, t2), _mm_load_ps(B.inv_a2)))),
-                       _mm_mul_ps(c2, c2));
+        const __m128 x = _mm_mul_ps(_mm_sub_ps(zero, t2), _mm_load_ps(B.inv_a2));
+        // Every facing lane's exp underflows to exactly 0 (exp_nonpositive: x < -87): D = 0, and the
+        // block would add exact zeros to both sums (x is finite on those lanes; the rest are masked).
+        if (_mm_movemask_ps(_mm_and_ps(ok, _mm_cmpge_ps(x, _mm_set1_ps(-87.f)))) == 0) return;
+        D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(x)), _mm_mul_ps(c2, c2));
     }
     D = _mm_and_ps(ok, D);
     psum = _mm_add_ps(psum, _mm_mul_ps(_mm_mul_ps(o.c, D), ch));

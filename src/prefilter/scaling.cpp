@@ -370,8 +370,8 @@ struct ScalingEstimator::Task {
     /// Pair terms (scaling.h, "Standard errors") of lines x (numerator) and y (denominator):
     /// Σ (x0 - x1)² into sq, Σ (y0 - y1)² into dsq, Σ (x0 - x1)(y0 - y1) into cross; a null
     /// partner (the unpaired last line) counts as 0; null sq / dsq / cross skip that term. The
-    /// differences first, then one plain loop per sum (no tests inside: the compiler vectorises
-    /// them); every entry gets the same operations as one fused loop would give it.
+    /// differences first, then one `accumulate` per sum (no tests inside the loops); every entry
+    /// gets the same operations as one fused loop would give it.
     void add_pair(const std::vector<double> *x0, const std::vector<double> *x1, const std::vector<double> *y0,
                   const std::vector<double> *y1, std::vector<double> *sq, std::vector<double> *dsq,
                   std::vector<double> *cross) {
