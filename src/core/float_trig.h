@@ -21,7 +21,7 @@ inline float atan2_approx(float y, float x) {
     const float ax = std::abs(x), ay = std::abs(y);
     const float hi = std::max(ax, ay), lo = std::min(ax, ay);
     if (!(hi > 0.f)) return 0.f;
-    float r = atan_unit_interval_estrin(lo / hi);
+    float r = atan_unit_interval(lo / hi);
     if (ay > ax) r = PiOver2 - r;
     if (x < 0.f) r = Pi - r;
     return std::copysign(r, y);

@@ -46,26 +46,11 @@ inline float next_float_up(float v) {
 inline int log2_int(uint32_t v) { return v <= 1 ? 0 : 31 - __builtin_clz(v); }
 
 /// atan(a) for a in [0, 1] (Abramowitz and Stegun 4.4.49: a times a polynomial of degree 8 in
-/// a^2, error 2e-8 in exact arithmetic, about 1e-7 in float). T: float, or a float vector type
-/// (GCC vector extension) evaluated lane by lane.
+/// z = a^2, error 2e-8 in exact arithmetic, about 1e-7 in float), the polynomial by Estrin's
+/// scheme: pairs of coefficients, then powers z^2, z^4, z^8, in about half the dependent
+/// multiply-adds of Horner's (the samplers' set-ups and the S lookup wait on it). T: float, or a
+/// float vector type (GCC vector extension) evaluated lane by lane.
 template <class T> inline T atan_unit_interval(T a) {
-    const T z = a * a;
-    T p = z * 0.0028662257f - 0.0161657367f;
-    p = p * z + 0.0429096138f;
-    p = p * z - 0.0752896400f;
-    p = p * z + 0.1065626393f;
-    p = p * z - 0.1420889944f;
-    p = p * z + 0.1999355085f;
-    p = p * z - 0.3333314528f;
-    return a * (p * z + 1.f);
-}
-
-/// atan_unit_interval with its degree-8 polynomial in z = a^2 evaluated by Estrin's scheme:
-/// pairs of coefficients, then powers z^2, z^4, z^8, in about half the dependent multiply-adds
-/// of Horner's (for the samplers' set-ups and the S lookup, which wait on it). The same
-/// coefficients; the rounding differs from Horner's by a few ulp (FloatTrig.WithinStatedError).
-/// T: float or a float vector type, as above.
-template <class T> inline T atan_unit_interval_estrin(T a) {
     const T z = a * a, z2 = z * z, z4 = z2 * z2, z8 = z4 * z4;
     const T q0 = -0.3333314528f * z + 1.f, q1 = -0.1420889944f * z + 0.1999355085f;
     const T q2 = -0.0752896400f * z + 0.1065626393f, q3 = -0.0161657367f * z + 0.0429096138f;

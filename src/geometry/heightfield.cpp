@@ -6,6 +6,7 @@
 #include <type_traits>
 #include <fmt/format.h>
 #include "core/error.h"
+#include "image/wrap_mode.h"
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
@@ -14,11 +15,8 @@ namespace meso {
 
 namespace {
 
-inline int64_t wrap_index(int64_t i, int n) {
-    if (i >= 0 && i < n) return i;  // the common case, without an integer division
-    int64_t a = i % n;
-    return a < 0 ? a + n : a;
-}
+/// Periodic index in [0, n) (image/wrap_mode.h's, which skips the division in range).
+inline int64_t wrap_index(int64_t i, int n) { return meso::wrap_index(i, int64_t(n), WrapMode::Repeat); }
 
 /// floor() as an integer, exact for the cell-space magnitudes meso uses.
 inline int64_t ifloor(double x) { return int64_t(std::floor(x)); }

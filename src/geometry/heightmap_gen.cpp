@@ -26,6 +26,7 @@
 #include <functional>
 #include "core/dft.h"
 #include "core/error.h"
+#include "image/wrap_mode.h"
 #include "sampling/rng.h"
 
 namespace meso {
@@ -151,12 +152,9 @@ public:
         const uint64_t key = hash_combine(m_seed, layer);
         const Table *t = layer < m_tables.size() && m_tables[layer].px == px && m_tables[layer].py == py
                              ? &m_tables[layer] : nullptr;
-        auto wrap = [](int64_t a, int64_t p) {  // a mod p; corners are mostly in [0, p]: no division there
-            return a >= 0 && a < p ? a : a == p ? 0 : ((a % p) + p) % p;
-        };
         auto g = [&](int64_t a, int64_t b, double ox, double oy) {
-            a = wrap(a, px);
-            b = wrap(b, py);
+            a = wrap_index(a, px, WrapMode::Repeat);
+            b = wrap_index(b, py, WrapMode::Repeat);
             if (t) {
                 const double *cs = &t->cos_sin[2 * (size_t(b) * size_t(px) + size_t(a))];
                 return cs[0] * ox + cs[1] * oy;

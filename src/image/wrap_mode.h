@@ -20,7 +20,7 @@ inline int64_t wrap_index(int64_t i, int64_t n, WrapMode mode) {
             return m < n ? m : p - 1 - m;
         }
         case WrapMode::Repeat:
-        default: return ((i % n) + n) % n;
+        default: return i >= 0 && i < n ? i : ((i % n) + n) % n;  // in range (the common case): no division
     }
 }
 

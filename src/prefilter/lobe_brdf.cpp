@@ -497,10 +497,7 @@ SvLobeBrdf::SvLobeBrdf(LobeBase base, const std::vector<PatchNdf> &ndf, int widt
 }
 
 float SvLobeBrdf::view_weight(const Lobe &l, const Vec3 &wo) const {
-    const VmfTables &tab = vmf_tables();
-    const float t = dot(l.mu, wo);
-    if (m_visible) return l.c * VmfTables::lookup(tab.C, t, l.krow) / l.cz;
-    return l.c * std::min(1.f, VmfTables::lookup(tab.H, t, l.krow) / l.hz);
+    return l.c * std::min(1.f, VmfTables::lookup(vmf_tables().H, dot(l.mu, wo), l.krow) / l.hz);
 }
 
 size_t SvLobeBrdf::patch_index(Vec2 uv) const {
@@ -589,8 +586,6 @@ thread_local LambertWoCache tl_lambert_wo;
 const float *SvLobeBrdf::lambert_weights(size_t patch, const Vec3 &wo) const {
     LambertWoCache &c = tl_lambert_wo;
     if (c.key.holds(m_serial, uint32_t(patch), wo)) return c.v;
-    const auto [b, e] = lobes(patch);
-    const size_t n = std::min<size_t>(size_t(e - b), LambertWoCache::kMax);
     c.key.serial = 0;  // invalid while being filled
     if (m_visible) {
         // Four lobes at a time from the patch's blocks (lane q of block k is lobe 4k + q; padding
@@ -606,6 +601,8 @@ const float *SvLobeBrdf::lambert_weights(size_t patch, const Vec3 &wo) const {
             _mm_storeu_ps(c.v + 4 * k, visible_weights(B.c, B.crow, B.cfy, B.inv_cz, lo, false));
         }
     } else {
+        const auto [b, e] = lobes(patch);
+        const size_t n = std::min<size_t>(size_t(e - b), LambertWoCache::kMax);
         for (size_t j = 0; j < n; ++j) c.v[j] = view_weight(b[j], wo);
     }
     c.key.set(m_serial, uint32_t(patch), wo);
@@ -634,14 +631,14 @@ void SvLobeBrdf::lambert_sums(size_t patch, const float *vw, const Vec3 &wi, flo
 
 Spectrum SvLobeBrdf::eval_pdf_lambert(const ShadingContext &ctx, size_t patch, const Vec3 &wo, const Vec3 &wi,
                                       float *pdf) const {
-    const VmfTables &tab = vmf_tables();
-    const auto [b, e0] = lobes(patch);
-    const Lobe *e = b + std::min<ptrdiff_t>(e0 - b, LambertWoCache::kMax);
     const float *vw = lambert_weights(patch, wo);
     float sum = 0.f, psum = 0.f, ptot = 0.f;
     if (m_visible) {
         lambert_sums(patch, vw, wi, sum, psum, ptot);
     } else {
+        const VmfTables &tab = vmf_tables();
+        const auto [b, e0] = lobes(patch);
+        const Lobe *e = b + std::min<ptrdiff_t>(e0 - b, LambertWoCache::kMax);
         for (const Lobe *l = b; l != e; ++l) {
             const float v = vw[l - b];
             if (!(v > 0.f)) continue;

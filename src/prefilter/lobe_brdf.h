@@ -214,10 +214,11 @@ private:
                               float *pdf) const;
     /// eval_pdf_lambert's sums in the visible form from the patch's blocks (lobe_brdf.cpp).
     void lambert_sums(size_t patch, const float *vw, const Vec3 &wi, float &sum, float &psum, float &ptot) const;
-    /// A lobe's weight towards ωo (P_j ∝ it): c_j v_j(ωo) of the header (Lambertian lobes, and
-    /// facing microfacet lobes in the visible form).
+    /// A Lambertian lobe's weight towards ωo (P_j ∝ it) in models made before the visible form:
+    /// c_j min(1, H(μ_j·ωo) / H(μ_j,z)) (the visible form's weights: lambert_weights' blocks).
     float view_weight(const Lobe &l, const Vec3 &wo) const;
-    /// view_weight of each Lambertian lobe of `patch` towards wo, in the patch's order, from the
+    /// The weight of each Lambertian lobe of `patch` towards wo (the visible form's c_j C(μ_j·ωo) /
+    /// C(μ_j,z) from the blocks, else view_weight), in the patch's order, from the
     /// thread's cache of the last (model, patch, ωo) when it holds them (the same values).
     const float *lambert_weights(size_t patch, const Vec3 &wo) const;
     /// The Lambertian lobe of `patch` chosen by u_lobe for wo (P_j of the header); null when none faces wo.

@@ -382,8 +382,7 @@ struct ScalingEstimator::Task {
             if (!a) {
                 std::fill(o, o + n, 0.0);
             } else if (!b) {
-                const double *pa = a->data();
-                for (size_t q = 0; q < n; ++q) o[q] = pa[q] - 0.0;
+                std::copy_n(a->data(), n, o);  // a - 0.0 is a, -0.0 included
             } else {
                 const double *pa = a->data(), *pb = b->data();
                 for (size_t q = 0; q < n; ++q) o[q] = pa[q] - pb[q];

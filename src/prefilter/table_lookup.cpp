@@ -20,7 +20,7 @@ typedef float F4 __attribute__((vector_size(16)));
 /// atan(x) for x in [0, 1], lane by lane, without a branch or a division: Abramowitz and
 /// Stegun 4.4.49, x times a polynomial of degree 8 in x² (error 2e-8; in float 1e-7, tested
 /// against std::atan), by Estrin's scheme (half Horner's chain of dependent operations).
-inline F4 atan01(F4 x) { return atan_unit_interval_estrin(x); }
+inline F4 atan01(F4 x) { return atan_unit_interval(x); }
 
 /// One direction's part of hemisphere_to_square_fast: the two ratios whose arctangents it needs.
 struct SquareMap {
