@@ -552,22 +552,87 @@ Spectrum SvLobeBrdf::eval_pdf_microfacet(size_t patch, const Vec3 &wo, const Vec
 }
 
 void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const {
-    // eval_pdf_microfacet at every ωi: the same operations in the same order, so the same values.
+    // eval_pdf_microfacet at every ωi, with the same values bit for bit, four ωi per step instead
+    // of four lobes: a lobe is broadcast and each ωi is a lane (a patch of six lobes filled two
+    // four-lobe blocks, two lanes idle; a lobe facing away from ωo is skipped once for all ωi).
+    // Every lane runs wi_terms' operations in its order, and acc[q] adds the lobes of block
+    // position q in block order, as wi_terms' lane q does, so hsum's (s0 + s2) + (s1 + s3) is
+    // (acc0 + acc2) + (acc1 + acc3). Skipped lobes and masked lanes add +0, which changes no sum.
     const bool ggx = m_base.type == MicrofacetType::GGX;
     const uint32_t first = m_first_block[patch], nb = m_first_block[patch + 1] - first;
     float pt = 0.f;
     const WoTerms *t = wo_side(m_blocks.data() + first, nb, m_serial, uint32_t(patch), ggx, m_visible, wo, pt);
+    // The lobes that face ωo (wi_terms masks the others), in block order with their lane.
+    struct Active {
+        float mx, my, mz, alpha, a2, inv_a2, d_norm, c, lam_o, c4lo;
+        int q;
+    };
+    thread_local std::vector<Active> act;
+    act.clear();
+    for (uint32_t b = 0; b < nb; ++b) {
+        const LobeBlock &B = m_blocks[first + b];
+        alignas(16) float lo[4], c[4], lam[4], c4[4];
+        _mm_store_ps(lo, t[b].lo), _mm_store_ps(c, t[b].c), _mm_store_ps(lam, t[b].lam_o), _mm_store_ps(c4, t[b].c4lo);
+        for (int q = 0; q < 4; ++q)
+            if (lo[q] > 0.f)
+                act.push_back({B.mx[q], B.my[q], B.mz[q], B.alpha[q], B.a2[q], B.inv_a2[q], B.d_norm[q], c[q], lam[q], c4[q], q});
+    }
+    // The valid ωi (wi.z > 0 and ωo·h > 0) and their half vectors, as eval_pdf_microfacet computes them.
+    thread_local std::vector<float> soa;
+    thread_local std::vector<int> idx;
+    soa.resize(size_t(8) * (size_t(n) + 4));
+    idx.clear();
+    float *ix = soa.data(), *iy = ix + n + 4, *iz = iy + n + 4, *hx = iz + n + 4, *hy = hx + n + 4, *hz = hy + n + 4,
+          *dwh = hz + n + 4, *cih = dwh + n + 4;
     for (int k = 0; k < n; ++k) {
         out[k] = Spectrum(0.f);
         if (!(wi[k].z > 0.f)) continue;
         const Vec3 h = normalize(wo + wi[k]);
-        const float dwh = dot(wo, h);
-        if (!(dwh > 0.f)) continue;
-        const __m128 ix = _mm_set1_ps(wi[k].x), iy = _mm_set1_ps(wi[k].y), iz = _mm_set1_ps(wi[k].z);
-        const __m128 hx = _mm_set1_ps(h.x), hy = _mm_set1_ps(h.y), hz = _mm_set1_ps(h.z);
-        __m128 sum = _mm_setzero_ps(), psum = _mm_setzero_ps();
-        for (uint32_t b = 0; b < nb; ++b) wi_terms(m_blocks[first + b], t[b], ggx, ix, iy, iz, hx, hy, hz, sum, psum);
-        out[k] = microfacet_value(patch, hsum(sum), hsum(psum), pt, dwh, dot(wi[k], h), nullptr);
+        const float d = dot(wo, h);
+        if (!(d > 0.f)) continue;
+        const size_t m = idx.size();
+        ix[m] = wi[k].x, iy[m] = wi[k].y, iz[m] = wi[k].z, hx[m] = h.x, hy[m] = h.y, hz[m] = h.z;
+        dwh[m] = d, cih[m] = dot(wi[k], h);
+        idx.push_back(k);
+    }
+    const size_t m = idx.size();
+    for (size_t j = m; j < m + 4 && m > 0; ++j)  // pad the last group with copies of the first ωi
+        ix[j] = ix[0], iy[j] = iy[0], iz[j] = iz[0], hx[j] = hx[0], hy[j] = hy[0], hz[j] = hz[0];
+    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f), tiny = _mm_set1_ps(1e-12f);
+    for (size_t g = 0; g < m; g += 4) {
+        const __m128 vix = _mm_loadu_ps(ix + g), viy = _mm_loadu_ps(iy + g), viz = _mm_loadu_ps(iz + g);
+        const __m128 vhx = _mm_loadu_ps(hx + g), vhy = _mm_loadu_ps(hy + g), vhz = _mm_loadu_ps(hz + g);
+        __m128 acc[4] = {zero, zero, zero, zero}, pacc[4] = {zero, zero, zero, zero};
+        for (const Active &a : act) {
+            const __m128 mx = _mm_set1_ps(a.mx), my = _mm_set1_ps(a.my), mz = _mm_set1_ps(a.mz);
+            const __m128 li = _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, vix), _mm_mul_ps(my, viy)), _mm_mul_ps(mz, viz));
+            const __m128 ch = _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, vhx), _mm_mul_ps(my, vhy)), _mm_mul_ps(mz, vhz));
+            const __m128 c2 = _mm_mul_ps(ch, ch);
+            const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(li, zero), _mm_and_ps(_mm_cmpgt_ps(ch, zero), _mm_cmpgt_ps(c2, tiny)));
+            if (_mm_movemask_ps(ok) == 0) continue;
+            const __m128 a2 = _mm_set1_ps(a.a2), dn = _mm_set1_ps(a.d_norm);
+            __m128 D;
+            if (ggx) {
+                const __m128 d = _mm_add_ps(_mm_mul_ps(c2, _mm_sub_ps(a2, one)), one);
+                D = _mm_div_ps(dn, _mm_mul_ps(d, d));
+            } else {
+                const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
+                const __m128 x = _mm_mul_ps(_mm_sub_ps(zero, t2), _mm_set1_ps(a.inv_a2));
+                if (_mm_movemask_ps(_mm_and_ps(ok, _mm_cmpge_ps(x, _mm_set1_ps(-87.f)))) == 0) continue;
+                D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(x)), _mm_mul_ps(c2, c2));
+            }
+            D = _mm_and_ps(ok, D);
+            pacc[a.q] = _mm_add_ps(pacc[a.q], _mm_mul_ps(_mm_mul_ps(_mm_set1_ps(a.c), D), ch));
+            const __m128 term = _mm_div_ps(_mm_mul_ps(_mm_set1_ps(a.c4lo), D),
+                                           _mm_add_ps(one, _mm_add_ps(_mm_set1_ps(a.lam_o),
+                                                                      lambda4(ggx, _mm_set1_ps(a.alpha), a2, li))));
+            acc[a.q] = _mm_add_ps(acc[a.q], _mm_and_ps(ok, term));
+        }
+        alignas(16) float s[4], ps[4];
+        _mm_store_ps(s, _mm_add_ps(_mm_add_ps(acc[0], acc[2]), _mm_add_ps(acc[1], acc[3])));
+        _mm_store_ps(ps, _mm_add_ps(_mm_add_ps(pacc[0], pacc[2]), _mm_add_ps(pacc[1], pacc[3])));
+        for (size_t l = 0; l < 4 && g + l < m; ++l)
+            out[idx[g + l]] = microfacet_value(patch, s[l], ps[l], pt, dwh[g + l], cih[g + l], nullptr);
     }
 }
 
