@@ -219,39 +219,52 @@ inline WoTerms wo_terms(const Block &B, bool ggx, bool visible, __m128 ox, __m12
     const __m128 c = visible ? visible_weights(B.c, B.crow, B.cfy, B.inv_cz, lo) : _mm_load_ps(B.c);
     return {lo, c, lambda4(ggx, _mm_load_ps(B.alpha), _mm_load_ps(B.a2), lo), _mm_div_ps(c, _mm_mul_ps(_mm_set1_ps(4.f), lo))};
 }
-/// The ωi side of one block (ωi, half vector h): adds c D G / (4 μ_j·ωo) to sum and c D (μ_j·h) to
-/// psum over the lanes whose lobe faces ωo, ωi and h. Lanes that fail a condition are masked to 0
-/// after the fact, so the infinities and NaNs of their divisions never reach the sums.
+/// Four lobe lanes' parameters and ωo side, as wi_terms reads them: a block's four lobes
+/// (wi_terms), or one lobe broadcast against four ωi (eval_batch_microfacet).
+struct LobeLanes {
+    __m128 mx, my, mz, alpha, a2, inv_a2, d_norm;
+    __m128 c, lam_o, c4lo;  ///< WoTerms' c, lam_o, c4lo
+};
+/// The ωi side of four lanes (ωi, half vector h): adds c D G / (4 μ_j·ωo) to sum and c D (μ_j·h)
+/// to psum over the lanes of `facing` (μ_j·ωo > 0) whose lobe faces ωi and h. Lanes that fail a
+/// condition are masked to 0 after the fact, so the infinities and NaNs of their divisions never
+/// reach the sums; when no lane is left, nothing is added (the same as adding +0).
+inline void lane_terms(const LobeLanes &L, __m128 facing, bool ggx, __m128 ix, __m128 iy, __m128 iz, __m128 hx,
+                       __m128 hy, __m128 hz, __m128 &sum, __m128 &psum) {
+    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f);
+    const __m128 li = _mm_add_ps(_mm_add_ps(_mm_mul_ps(L.mx, ix), _mm_mul_ps(L.my, iy)), _mm_mul_ps(L.mz, iz));
+    const __m128 ch = _mm_add_ps(_mm_add_ps(_mm_mul_ps(L.mx, hx), _mm_mul_ps(L.my, hy)), _mm_mul_ps(L.mz, hz));
+    const __m128 c2 = _mm_mul_ps(ch, ch);
+    const __m128 ok = _mm_and_ps(_mm_and_ps(facing, _mm_cmpgt_ps(li, zero)),
+                                 _mm_and_ps(_mm_cmpgt_ps(ch, zero), _mm_cmpgt_ps(c2, _mm_set1_ps(1e-12f))));
+    if (_mm_movemask_ps(ok) == 0) return;
+    __m128 D;
+    if (ggx) {
+        const __m128 d = _mm_add_ps(_mm_mul_ps(c2, _mm_sub_ps(L.a2, one)), one);
+        D = _mm_div_ps(L.d_norm, _mm_mul_ps(d, d));
+    } else {
+        const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
+        const __m128 x = _mm_mul_ps(_mm_sub_ps(zero, t2), L.inv_a2);
+        // Every facing lane's exp underflows to exactly 0 (exp_nonpositive: x < -87): D = 0, and the
+        // lanes would add exact zeros to both sums (x is finite on those lanes; the rest are masked).
+        if (_mm_movemask_ps(_mm_and_ps(ok, _mm_cmpge_ps(x, _mm_set1_ps(-87.f)))) == 0) return;
+        D = _mm_div_ps(_mm_mul_ps(L.d_norm, exp_nonpositive(x)), _mm_mul_ps(c2, c2));
+    }
+    D = _mm_and_ps(ok, D);
+    psum = _mm_add_ps(psum, _mm_mul_ps(_mm_mul_ps(L.c, D), ch));
+    // c D G / (4 μ_j·ωo) with G = 1 / (1 + Λ(ωo) + Λ(ωi)): one division (c / (4 lo) is per ωo).
+    const __m128 term =
+        _mm_div_ps(_mm_mul_ps(L.c4lo, D), _mm_add_ps(one, _mm_add_ps(L.lam_o, lambda4(ggx, L.alpha, L.a2, li))));
+    sum = _mm_add_ps(sum, _mm_and_ps(ok, term));
+}
+/// The ωi side of one block of four lobes (lane_terms).
 template <class Block>
 inline void wi_terms(const Block &B, const WoTerms &o, bool ggx, __m128 ix, __m128 iy, __m128 iz, __m128 hx,
                      __m128 hy, __m128 hz, __m128 &sum, __m128 &psum) {
-    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f);
-    const __m128 mx = _mm_load_ps(B.mx), my = _mm_load_ps(B.my), mz = _mm_load_ps(B.mz);
-    const __m128 li = _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, ix), _mm_mul_ps(my, iy)), _mm_mul_ps(mz, iz));
-    const __m128 ch = _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, hx), _mm_mul_ps(my, hy)), _mm_mul_ps(mz, hz));
-    const __m128 c2 = _mm_mul_ps(ch, ch);
-    const __m128 ok = _mm_and_ps(_mm_and_ps(_mm_cmpgt_ps(o.lo, zero), _mm_cmpgt_ps(li, zero)),
-                                 _mm_and_ps(_mm_cmpgt_ps(ch, zero), _mm_cmpgt_ps(c2, _mm_set1_ps(1e-12f))));
-    if (_mm_movemask_ps(ok) == 0) return;
-    const __m128 a2 = _mm_load_ps(B.a2), dn = _mm_load_ps(B.d_norm);
-    __m128 D;
-    if (ggx) {
-        const __m128 d = _mm_add_ps(_mm_mul_ps(c2, _mm_sub_ps(a2, one)), one);
-        D = _mm_div_ps(dn, _mm_mul_ps(d, d));
-    } else {
-        const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
-        const __m128 x = _mm_mul_ps(_mm_sub_ps(zero, t2), _mm_load_ps(B.inv_a2));
-        // Every facing lane's exp underflows to exactly 0 (exp_nonpositive: x < -87): D = 0, and the
-        // block would add exact zeros to both sums (x is finite on those lanes; the rest are masked).
-        if (_mm_movemask_ps(_mm_and_ps(ok, _mm_cmpge_ps(x, _mm_set1_ps(-87.f)))) == 0) return;
-        D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(x)), _mm_mul_ps(c2, c2));
-    }
-    D = _mm_and_ps(ok, D);
-    psum = _mm_add_ps(psum, _mm_mul_ps(_mm_mul_ps(o.c, D), ch));
-    // c D G / (4 μ_j·ωo) with G = 1 / (1 + Λ(ωo) + Λ(ωi)): one division (c / (4 lo) is per ωo).
-    const __m128 term = _mm_div_ps(_mm_mul_ps(o.c4lo, D),
-                                   _mm_add_ps(one, _mm_add_ps(o.lam_o, lambda4(ggx, _mm_load_ps(B.alpha), a2, li))));
-    sum = _mm_add_ps(sum, _mm_and_ps(ok, term));
+    const LobeLanes L{_mm_load_ps(B.mx),     _mm_load_ps(B.my),     _mm_load_ps(B.mz), _mm_load_ps(B.alpha),
+                      _mm_load_ps(B.a2),     _mm_load_ps(B.inv_a2), _mm_load_ps(B.d_norm),
+                      o.c,                   o.lam_o,               o.c4lo};
+    lane_terms(L, _mm_cmpgt_ps(o.lo, _mm_setzero_ps()), ggx, ix, iy, iz, hx, hy, hz, sum, psum);
 }
 
 /// The ωo side of one patch's blocks, kept per thread for the last (model, patch, ωo) asked: a
@@ -562,9 +575,9 @@ void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 
     const uint32_t first = m_first_block[patch], nb = m_first_block[patch + 1] - first;
     float pt = 0.f;
     const WoTerms *t = wo_side(m_blocks.data() + first, nb, m_serial, uint32_t(patch), ggx, m_visible, wo, pt);
-    // The lobes that face ωo (wi_terms masks the others), in block order with their lane.
+    // The lobes that face ωo (lane_terms masks the others), broadcast, in block order with their lane.
     struct Active {
-        float mx, my, mz, alpha, a2, inv_a2, d_norm, c, lam_o, c4lo;
+        LobeLanes L;
         int q;
     };
     thread_local std::vector<Active> act;
@@ -575,7 +588,10 @@ void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 
         _mm_store_ps(lo, t[b].lo), _mm_store_ps(c, t[b].c), _mm_store_ps(lam, t[b].lam_o), _mm_store_ps(c4, t[b].c4lo);
         for (int q = 0; q < 4; ++q)
             if (lo[q] > 0.f)
-                act.push_back({B.mx[q], B.my[q], B.mz[q], B.alpha[q], B.a2[q], B.inv_a2[q], B.d_norm[q], c[q], lam[q], c4[q], q});
+                act.push_back({{_mm_set1_ps(B.mx[q]), _mm_set1_ps(B.my[q]), _mm_set1_ps(B.mz[q]), _mm_set1_ps(B.alpha[q]),
+                                _mm_set1_ps(B.a2[q]), _mm_set1_ps(B.inv_a2[q]), _mm_set1_ps(B.d_norm[q]),
+                                _mm_set1_ps(c[q]), _mm_set1_ps(lam[q]), _mm_set1_ps(c4[q])},
+                               q});
     }
     // The valid ωi (wi.z > 0 and ωo·h > 0) and their half vectors, as eval_pdf_microfacet computes them.
     thread_local std::vector<float> soa;
@@ -598,36 +614,13 @@ void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 
     const size_t m = idx.size();
     for (size_t j = m; j < m + 4 && m > 0; ++j)  // pad the last group with copies of the first ωi
         ix[j] = ix[0], iy[j] = iy[0], iz[j] = iz[0], hx[j] = hx[0], hy[j] = hy[0], hz[j] = hz[0];
-    const __m128 zero = _mm_setzero_ps(), one = _mm_set1_ps(1.f), tiny = _mm_set1_ps(1e-12f);
+    const __m128 zero = _mm_setzero_ps();
     for (size_t g = 0; g < m; g += 4) {
         const __m128 vix = _mm_loadu_ps(ix + g), viy = _mm_loadu_ps(iy + g), viz = _mm_loadu_ps(iz + g);
         const __m128 vhx = _mm_loadu_ps(hx + g), vhy = _mm_loadu_ps(hy + g), vhz = _mm_loadu_ps(hz + g);
         __m128 acc[4] = {zero, zero, zero, zero}, pacc[4] = {zero, zero, zero, zero};
-        for (const Active &a : act) {
-            const __m128 mx = _mm_set1_ps(a.mx), my = _mm_set1_ps(a.my), mz = _mm_set1_ps(a.mz);
-            const __m128 li = _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, vix), _mm_mul_ps(my, viy)), _mm_mul_ps(mz, viz));
-            const __m128 ch = _mm_add_ps(_mm_add_ps(_mm_mul_ps(mx, vhx), _mm_mul_ps(my, vhy)), _mm_mul_ps(mz, vhz));
-            const __m128 c2 = _mm_mul_ps(ch, ch);
-            const __m128 ok = _mm_and_ps(_mm_cmpgt_ps(li, zero), _mm_and_ps(_mm_cmpgt_ps(ch, zero), _mm_cmpgt_ps(c2, tiny)));
-            if (_mm_movemask_ps(ok) == 0) continue;
-            const __m128 a2 = _mm_set1_ps(a.a2), dn = _mm_set1_ps(a.d_norm);
-            __m128 D;
-            if (ggx) {
-                const __m128 d = _mm_add_ps(_mm_mul_ps(c2, _mm_sub_ps(a2, one)), one);
-                D = _mm_div_ps(dn, _mm_mul_ps(d, d));
-            } else {
-                const __m128 t2 = _mm_div_ps(_mm_sub_ps(one, c2), c2);
-                const __m128 x = _mm_mul_ps(_mm_sub_ps(zero, t2), _mm_set1_ps(a.inv_a2));
-                if (_mm_movemask_ps(_mm_and_ps(ok, _mm_cmpge_ps(x, _mm_set1_ps(-87.f)))) == 0) continue;
-                D = _mm_div_ps(_mm_mul_ps(dn, exp_nonpositive(x)), _mm_mul_ps(c2, c2));
-            }
-            D = _mm_and_ps(ok, D);
-            pacc[a.q] = _mm_add_ps(pacc[a.q], _mm_mul_ps(_mm_mul_ps(_mm_set1_ps(a.c), D), ch));
-            const __m128 term = _mm_div_ps(_mm_mul_ps(_mm_set1_ps(a.c4lo), D),
-                                           _mm_add_ps(one, _mm_add_ps(_mm_set1_ps(a.lam_o),
-                                                                      lambda4(ggx, _mm_set1_ps(a.alpha), a2, li))));
-            acc[a.q] = _mm_add_ps(acc[a.q], _mm_and_ps(ok, term));
-        }
+        const __m128 all = _mm_castsi128_ps(_mm_set1_epi32(-1));
+        for (const Active &a : act) lane_terms(a.L, all, ggx, vix, viy, viz, vhx, vhy, vhz, acc[a.q], pacc[a.q]);
         alignas(16) float s[4], ps[4];
         _mm_store_ps(s, _mm_add_ps(_mm_add_ps(acc[0], acc[2]), _mm_add_ps(acc[1], acc[3])));
         _mm_store_ps(ps, _mm_add_ps(_mm_add_ps(pacc[0], pacc[2]), _mm_add_ps(pacc[1], pacc[3])));
