@@ -24,6 +24,7 @@
 //   alpha                 float     0        [0, 1e3]; < 1e-4 = smooth mirror
 //   alpha_u, alpha_v      float     —        anisotropic alternative to alpha
 //   sample_visible        bool      true     visible-normal sampling
+#include <algorithm>
 #include <fmt/format.h>
 #include <optional>
 #include "bsdf/fresnel.h"
@@ -46,13 +47,20 @@ public:
 
     Spectrum eval(const ShadingContext &ctx, const Vec3 &wo, const Vec3 &wi) const override {
         if (!m_dist || !(wo.z > 0.f) || !(wi.z > 0.f)) return Spectrum(0.f);
-        Vec3 h = normalize(wo + wi);
-        float D = m_dist->D(h);
-        if (D == 0.f) return Spectrum(0.f);
-        float G = m_dist->G(wo, wi, h);
-        float s = float(double(D) * G / (4.0 * wo.z));
-        if (!std::isfinite(s) || s <= 0.f) return Spectrum(0.f);
-        return fresnel_conductor(dot(wi, h), m_eta, m_k) * m_specular->eval(ctx) * s;
+        return rough_value(wo, wi, [&](const Vec3 &h) { return m_dist->G(wo, wi, h); },
+                           [&] { return m_specular->eval(ctx); });
+    }
+
+    /// eval at every wi with Λ(wo) and the specular texture's value computed once: the same values.
+    void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const override {
+        std::fill(out, out + n, Spectrum(0.f));
+        if (!m_dist || !(wo.z > 0.f) || n <= 0) return;
+        const double lo = m_dist->lambda(wo);
+        const Spectrum spec = m_specular->eval(ctx);
+        for (int k = 0; k < n; ++k)
+            if (wi[k].z > 0.f)
+                out[k] = rough_value(wo, wi[k], [&](const Vec3 &h) { return m_dist->G(wo, wi[k], h, lo); },
+                                     [&] { return spec; });
     }
 
     /// eval and pdf sharing the half vector, D and Λ(wo) (the multi-lobe BRDF of prefiltered
@@ -132,6 +140,18 @@ public:
     }
 
 private:
+    /// The rough lobe's value D G F / (4 wo.z) at wi (both above the surface): G and the
+    /// specular texture's value come from the callers (eval, eval_batch), so both give the same.
+    template <class GFn, class SpecFn>
+    Spectrum rough_value(const Vec3 &wo, const Vec3 &wi, const GFn &G_at, const SpecFn &specular) const {
+        const Vec3 h = normalize(wo + wi);
+        const float D = m_dist->D(h);
+        if (D == 0.f) return Spectrum(0.f);
+        const float G = G_at(h);
+        const float s = float(double(D) * G / (4.0 * wo.z));
+        if (!std::isfinite(s) || s <= 0.f) return Spectrum(0.f);
+        return fresnel_conductor(dot(wi, h), m_eta, m_k) * specular() * s;
+    }
     std::optional<MicrofacetDistribution> m_dist;
     Spectrum m_eta, m_k;
     std::shared_ptr<Texture> m_specular;

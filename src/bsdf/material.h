@@ -71,6 +71,12 @@ public:
         if (pdf) *pdf = this->pdf(ctx, wo, wi);
         return eval(ctx, wo, wi);
     }
+    /// eval at n directions wi[0 .. n) seen from one wo: out[k] = eval(ctx, wo, wi[k]), the same
+    /// values. Materials override it to share their wo side (the prefilter's next-event splat sends
+    /// every path vertex towards all its ωi bins).
+    virtual void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const {
+        for (int k = 0; k < n; ++k) out[k] = eval(ctx, wo, wi[k]);
+    }
     /// Union of the lobes this material can have.
     virtual uint32_t flags() const = 0;
     /// Approximate albedo for the `aov` integrator's albedo channel.

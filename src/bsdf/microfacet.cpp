@@ -121,7 +121,12 @@ float MicrofacetDistribution::G1(const Vec3 &w, const Vec3 &m) const {
 
 float MicrofacetDistribution::G(const Vec3 &wo, const Vec3 &wi, const Vec3 &m) const {
     if (!(dot(wo, m) * wo.z > 0.f) || !(dot(wi, m) * wi.z > 0.f)) return 0.f;
-    double lo = lambda(wo), li = lambda(wi);
+    return G(wo, wi, m, lambda(wo));
+}
+
+float MicrofacetDistribution::G(const Vec3 &wo, const Vec3 &wi, const Vec3 &m, double lo) const {
+    if (!(dot(wo, m) * wo.z > 0.f) || !(dot(wi, m) * wi.z > 0.f)) return 0.f;
+    const double li = lambda(wi);
     if (!std::isfinite(lo) || !std::isfinite(li)) return 0.f;
     if (wo.z * wi.z > 0.f) return float(1.0 / (1.0 + lo + li));
     // Transmission: ∫ C(h)^Λo (1 - C(h))^Λi dC = B(1 + Λo, 1 + Λi)  (Heitz 2014 eq. 101).

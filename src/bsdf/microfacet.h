@@ -60,6 +60,8 @@ public:
     /// Height-correlated masking-shadowing; reflection when wo.z * wi.z > 0, else
     /// transmission. Includes the χ+ side conditions for both directions.
     float G(const Vec3 &wo, const Vec3 &wi, const Vec3 &m) const;
+    /// G with Λ(wo) given (lambda(wo)): the same value, for callers that hold one wo for many wi.
+    float G(const Vec3 &wo, const Vec3 &wi, const Vec3 &m, double lambda_wo) const;
 
     /// Density of the microfacet normals that sample() produces (solid angle of m);
     /// wo must be in the upper hemisphere.

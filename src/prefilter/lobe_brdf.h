@@ -188,7 +188,7 @@ public:
     /// look at its patch misses it on fine levels: call early, with the work before eval_pdf).
     void prefetch(Vec2 uv) const;
     /// eval(ctx, wo, wi[b]) for b < n into out[b] (the prefilter's next-event splat).
-    void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
+    void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const override;
     /// Patch k's lobes [begin, end).
     std::pair<const Lobe *, const Lobe *> lobes(size_t k) const;
     const LobeBase &base() const { return m_base; }

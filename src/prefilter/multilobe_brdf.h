@@ -270,7 +270,7 @@ public:
 
     /// eval(ctx, wo, wi[b]) for b < n into out[b] (same values; wo's per-node transform and
     /// test are done once): the next-event splat of prefilter/scaling.cpp.
-    void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const;
+    void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const override;
 
     const std::vector<NdfNode> &nodes() const { return m_nodes; }
     /// Bytes of node data: the nodes and pick_node's compact copy of them.

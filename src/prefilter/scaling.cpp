@@ -131,6 +131,8 @@ struct ScalingEstimator::Task {
     Vec3 wo_k;              ///< its ωo
     PCG32 lr_k;             ///< its stream after the draw
     std::vector<Spectrum> fl;  ///< f'_low(ωi of every bin, ωo) of the current line
+    std::vector<Vec3> lwi;     ///< every bin's ωi in the current original vertex's frame
+    std::vector<Spectrum> fo;  ///< the base at the current original vertex towards every bin
     std::vector<size_t> vis;   ///< f'_low's nodes facing ωo ...
     std::vector<double> vw;    ///< ... and their weights c_k
     size_t orig_lines = 0, vertices = 0, rejected = 0, leaked = 0;  ///< the original's lines
@@ -151,7 +153,7 @@ struct ScalingEstimator::Task {
           pa(int(t / size_t(B)) % M), pb(int(t / size_t(B)) / M), box(int(t % size_t(B)) % N),
           boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3), cv(e.m_opt.cv_lines > 0), recip(!e.m_r1.empty()),
           rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)),
-          fl(static_cast<size_t>(B)), acc_low(g.size(), 0), low_lines(g.size(), 0), low_rejected(g.size(), 0),
+          fl(static_cast<size_t>(B)), lwi(static_cast<size_t>(B)), fo(static_cast<size_t>(B)), acc_low(g.size(), 0), low_lines(g.size(), 0), low_rejected(g.size(), 0),
           low_leaked(g.size(), 0), t_low(g.size(), 0.0), w_low(g.size(), 0.0) {}
 
     // Line k's own stream: its ωo, ωi shift and position in P are the same on G_orig and on
@@ -237,10 +239,11 @@ struct ScalingEstimator::Task {
     void splat_original_vertex(const Vertex &v, Vec3 lwo, const Spectrum &throughput, int depth, LineBuf &buf) {
         const Frame &fr = v.ctx.frame;
         const Vec3 org = spawn_origin(v);
+        for (int b = 0; b < B; ++b) lwi[size_t(b)] = fr.to_local(wi[size_t(b)]);
+        est.m_base.eval_batch(v.ctx, lwo, lwi.data(), B, fo.data());  // the wo side once (eval's values)
         for (int b = 0; b < B; ++b) {
-            const Vec3 lwi = fr.to_local(wi[size_t(b)]);
-            if (!(lwi.z > 0.f)) continue;
-            const Spectrum f = est.m_base.eval(v.ctx, lwo, lwi);
+            if (!(lwi[size_t(b)].z > 0.f)) continue;
+            const Spectrum &f = fo[size_t(b)];
             if (f.is_black()) continue;
             if (depth == 1 && cv) {
                 double *pc = &buf.c[size_t(b) * 3];
