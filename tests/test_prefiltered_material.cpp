@@ -332,6 +332,32 @@ TEST(PrefilteredTables, ConcentricInverse) {
     std::printf("concentric inverse: max error %.3g over %zu points\n", worst, pts.size());
 }
 
+// square_to_hemisphere (polynomial sine and cosine, no libm) against the map in double: unit,
+// within 1e-6 rad of it, and strictly above the horizon on the whole square, its border included.
+TEST(PrefilteredMaterial, SquareToHemisphereIsTheDoubleMap) {
+    PCG32 rng(5, 6);
+    double worst = 0.0;
+    for (int i = 0; i < 200000; ++i) {
+        Vec2 u(rng.next_float(), rng.next_float());
+        if (i < 4000) u = Vec2(float(i % 2000) / 2000.f, i < 2000 ? 0.9999999f : 1e-7f);  // the outer ring
+        const Vec2 d = square_to_uniform_disk_concentric(u);
+        const double rho = std::max(std::abs(2.0 * u.x - 1.0), std::abs(2.0 * u.y - 1.0));
+        const double len = std::sqrt(double(d.x) * d.x + double(d.y) * d.y);
+        const Vec3 w = square_to_hemisphere(u);
+        ASSERT_GT(w.z, 0.f) << u.x << ", " << u.y;
+        EXPECT_NEAR(length(w), 1.f, 3e-7f);
+        if (!(len > 0)) continue;
+        const double th = rho * meso::Pi / 2, st = std::sin(th);
+        const double ex = st * d.x / len, ey = st * d.y / len, ez = std::cos(th);
+        const double dot = (ex * w.x + ey * w.y + ez * w.z) / std::sqrt(double(length_squared(w)));
+        const double cross = std::sqrt(std::max(0.0, (ex - w.x) * (ex - w.x) + (ey - w.y) * (ey - w.y) + (ez - w.z) * (ez - w.z)));
+        worst = std::max(worst, cross);
+        ASSERT_LT(cross, 1e-6) << u.x << ", " << u.y << " (dot " << dot << ")";
+        EXPECT_NEAR(w.z, ez, 3e-7 + 3e-6 * ez) << u.x << ", " << u.y;  // relative at grazing angles
+    }
+    std::printf("square_to_hemisphere: max distance %.3g from the double map\n", worst);
+}
+
 // ------------------------------------------------------------------ (d) sampling
 
 TEST(PrefilteredMaterial, Chi2AndWeights) {

@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 #include <fstream>
 #include "core/error.h"
+#include "core/float_trig.h"
 #include "core/math.h"
 #include "core/properties.h"
 #include "sampling/warp.h"
@@ -53,11 +54,21 @@ Vec2 hemisphere_to_square(Vec3 w) {
 }
 
 Vec3 square_to_hemisphere(Vec2 u) {
+    // The disk point d at radius rho = max(|2u - 1|) (the concentric map's radius) goes to
+    // theta = rho pi / 2 along d / |d|. cos theta = sin x and sin theta = cos x with
+    // x = (1 - rho) pi / 2: the polynomial sine keeps its relative accuracy at grazing angles
+    // (x -> 0), so z > 0 inside the square (the prefilter makes 225 of these a line).
+    const float rho = std::min(1.f, std::max(std::abs(2.f * u.x - 1.f), std::abs(2.f * u.y - 1.f)));
+    if (!(rho > 0.f)) return Vec3(0.f, 0.f, 1.f);
     const Vec2 d = square_to_uniform_disk_concentric(u);
-    const double rho = std::min(1.0, std::sqrt(double(d.x) * d.x + double(d.y) * d.y));
-    if (!(rho > 0)) return Vec3(0.f, 0.f, 1.f);
-    const double theta = rho * (Pi / 2), st = std::sin(theta);
-    return Vec3(float(st * d.x / rho), float(st * d.y / rho), float(std::cos(theta)));
+    const float len2 = d.x * d.x + d.y * d.y;
+    if (!(len2 > 0.f)) return Vec3(0.f, 0.f, 1.f);
+    float z, st;
+    sincos_half_pi((1.f - rho) * PiOver2, z, st);
+    const float k = st / std::sqrt(len2);
+    // On the square's border (rho = 1) z is cos(pi / 2) as the map in double gives it, not 0: a
+    // direction of the grid stays above the horizon.
+    return Vec3(k * d.x, k * d.y, std::max(z, 6.123234e-17f));
 }
 
 Spectrum ScalingTables::S_bin(int bi, int bo) const {
