@@ -8,6 +8,7 @@
 #include <fmt/ranges.h>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <tbb/parallel_for.h>
 #include "core/distributed.h"
 #include "core/error.h"
 #include "core/output_set.h"
@@ -216,8 +217,11 @@ void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Mate
         last = since(*t_round);
         progress.finish(last);
         if (traced == 0) break;
-        se = 0;
-        for (const ScalingEstimator *e : group) se = std::max(se, e->current_S_rel_se());
+        // Each level's check is a fit of its T and S (three channels in parallel): the levels'
+        // fits run side by side, which keeps more than three cores busy.
+        std::vector<double> level_se(group.size(), 0.0);
+        tbb::parallel_for(size_t(0), group.size(), [&](size_t j) { level_se[j] = group[j]->current_S_rel_se(); });
+        se = *std::max_element(level_se.begin(), level_se.end());
         if (dist::rank() == 0)
             std::fprintf(stderr, "  %s: round %d: %zu tasks, median relative std. error of S%s %.4f (%.1f s)\n",
                          names.c_str(), round + 1, traced,
@@ -226,7 +230,7 @@ void scaling_stage(const PipelineOptions &o, const Heightfield &orig, const Mate
     }
     group.front()->set_progress(nullptr);
     st.assign(levels.size(), ScalingStats{});
-    for (size_t i = 0; i < levels.size(); ++i) levels[i].est->finish(levels[i].L.single, levels[i].L.ir, st[i]);
+    tbb::parallel_for(size_t(0), levels.size(), [&](size_t i) { levels[i].est->finish(levels[i].L.single, levels[i].L.ir, st[i]); });
 }
 
 nlohmann::json stats_json(const ScalingStats &s, bool ir) {

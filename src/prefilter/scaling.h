@@ -130,6 +130,7 @@
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <mutex>
 #include <vector>
 #include "geometry/heightfield.h"
 #include "prefilter/effective_brdf.h"
@@ -283,6 +284,15 @@ private:
     // on the original (m_area), on h_low and of the control variate.
     std::vector<double> m_wsum_low, m_wsum_cv;
     double m_slope_orig = 0, m_slope_low = 0;  // max |∇h| (detail::max_slope)
+    /// current_S_rel_se and S_rel_se_per_wo_bin of the sums after round `rounds` (se_cache).
+    struct SeCache {
+        int rounds = -1;
+        double median = 0;
+        std::vector<double> per_bo;
+    };
+    mutable SeCache m_se_cache;
+    mutable std::mutex m_se_mutex;
+    const SeCache &se_cache() const;
     ScalingStats m_stats;
 };
 

@@ -487,20 +487,24 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     }
 }
 
-double ScalingEstimator::current_S_rel_se() const {
-    ScalingTables a, b;
-    ScalingStats s;
-    std::vector<double> per_bo;
-    finish_impl(a, b, s, &per_bo);
-    return m_opt.interreflections ? std::max(s.S_rel_se_median, s.S_ir_rel_se_median) : s.S_rel_se_median;
+const ScalingEstimator::SeCache &ScalingEstimator::se_cache() const {
+    // The sums change only in a round, so one finish_impl a round serves the pipeline's check
+    // (current_S_rel_se) and the next round's stopping rule (S_rel_se_per_wo_bin): each was a
+    // whole fit of T and S (0.7 s a level on the bench plane, twice a round).
+    std::lock_guard<std::mutex> lock(m_se_mutex);
+    if (m_se_cache.rounds != m_stats.rounds) {
+        ScalingTables a, b;
+        ScalingStats s;
+        m_se_cache.per_bo.clear();
+        finish_impl(a, b, s, &m_se_cache.per_bo);
+        m_se_cache.median = m_opt.interreflections ? std::max(s.S_rel_se_median, s.S_ir_rel_se_median) : s.S_rel_se_median;
+        m_se_cache.rounds = m_stats.rounds;
+    }
+    return m_se_cache;
 }
 
-std::vector<double> ScalingEstimator::S_rel_se_per_wo_bin() const {
-    ScalingTables a, b;
-    ScalingStats s;
-    std::vector<double> per_bo;
-    finish_impl(a, b, s, &per_bo);
-    return per_bo;
-}
+double ScalingEstimator::current_S_rel_se() const { return se_cache().median; }
+
+std::vector<double> ScalingEstimator::S_rel_se_per_wo_bin() const { return se_cache().per_bo; }
 
 }  // namespace meso::prefilter
