@@ -53,8 +53,9 @@ public:
 
     /// eval at every wi with Λ(wo) and the specular texture's value computed once: the same values.
     void eval_batch(const ShadingContext &ctx, const Vec3 &wo, const Vec3 *wi, int n, Spectrum *out) const override {
+        if (n <= 0) return;
         std::fill(out, out + n, Spectrum(0.f));
-        if (!m_dist || !(wo.z > 0.f) || n <= 0) return;
+        if (!m_dist || !(wo.z > 0.f)) return;
         const double lo = m_dist->lambda(wo);
         const Spectrum spec = m_specular->eval(ctx);
         for (int k = 0; k < n; ++k)
