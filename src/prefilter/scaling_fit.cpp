@@ -235,9 +235,15 @@ void fit_rank1_channel(const BinPairMoments &m, int P, int c, double epsilon, Ra
         f.S_cap[c] = cap;
         double change = 0;
         for (int p = 0; p < P; ++p) {
-            double d = 0;
+            // Σ_j S_j den_pj in four running sums: one sum was a chain of dependent additions
+            // (their latency, not the loads, set the fit's pace: 225² terms a patch, 30 sweeps).
             const double *dp = &den[size_t(p) * BB];
-            for (size_t j = 0; j < BB; ++j) d += S[j] * dp[j];
+            double d4[4] = {0, 0, 0, 0};
+            size_t j = 0;
+            for (; j + 4 <= BB; j += 4)
+                for (int k = 0; k < 4; ++k) d4[k] += S[j + k] * dp[j + k];
+            for (; j < BB; ++j) d4[0] += S[j] * dp[j];
+            const double d = (d4[0] + d4[1]) + (d4[2] + d4[3]);
             const double t = (num_p[size_t(p)] + eps_p) / (d + eps_p);
             change = std::max(change, std::abs(t / T[size_t(p)] - 1.0));
             T[size_t(p)] = t;
