@@ -614,12 +614,11 @@ void SvLobeBrdf::eval_batch_microfacet(size_t patch, const Vec3 &wo, const Vec3 
     const size_t m = idx.size();
     for (size_t j = m; j < m + 4 && m > 0; ++j)  // pad the last group with copies of the first ωi
         ix[j] = ix[0], iy[j] = iy[0], iz[j] = iz[0], hx[j] = hx[0], hy[j] = hy[0], hz[j] = hz[0];
-    const __m128 zero = _mm_setzero_ps();
+    const __m128 zero = _mm_setzero_ps(), all = _mm_castsi128_ps(_mm_set1_epi32(-1));
     for (size_t g = 0; g < m; g += 4) {
         const __m128 vix = _mm_loadu_ps(ix + g), viy = _mm_loadu_ps(iy + g), viz = _mm_loadu_ps(iz + g);
         const __m128 vhx = _mm_loadu_ps(hx + g), vhy = _mm_loadu_ps(hy + g), vhz = _mm_loadu_ps(hz + g);
         __m128 acc[4] = {zero, zero, zero, zero}, pacc[4] = {zero, zero, zero, zero};
-        const __m128 all = _mm_castsi128_ps(_mm_set1_epi32(-1));
         for (const Active &a : act) lane_terms(a.L, all, ggx, vix, viy, viz, vhx, vhy, vhz, acc[a.q], pacc[a.q]);
         alignas(16) float s[4], ps[4];
         _mm_store_ps(s, _mm_add_ps(_mm_add_ps(acc[0], acc[2]), _mm_add_ps(acc[1], acc[3])));

@@ -131,8 +131,9 @@ struct ScalingEstimator::Task {
     Vec3 wo_k;              ///< its ωo
     PCG32 lr_k;             ///< its stream after the draw
     std::vector<Spectrum> fl;  ///< f'_low(ωi of every bin, ωo) of the current line
-    std::vector<Vec3> lwi;     ///< every bin's ωi in the current original vertex's frame
-    std::vector<Spectrum> fo;  ///< the base at the current original vertex towards every bin
+    std::vector<int> up;       ///< the bins above the current original vertex's micro-facet ...
+    std::vector<Vec3> lwi;     ///< ... their ωi in its frame ...
+    std::vector<Spectrum> fo;  ///< ... and the base towards them
     std::vector<size_t> vis;   ///< f'_low's nodes facing ωo ...
     std::vector<double> vw;    ///< ... and their weights c_k
     size_t orig_lines = 0, vertices = 0, rejected = 0, leaked = 0;  ///< the original's lines
@@ -239,11 +240,17 @@ struct ScalingEstimator::Task {
     void splat_original_vertex(const Vertex &v, Vec3 lwo, const Spectrum &throughput, int depth, LineBuf &buf) {
         const Frame &fr = v.ctx.frame;
         const Vec3 org = spawn_origin(v);
-        for (int b = 0; b < B; ++b) lwi[size_t(b)] = fr.to_local(wi[size_t(b)]);
-        est.m_base.eval_batch(v.ctx, lwo, lwi.data(), B, fo.data());  // the wo side once (eval's values)
+        // The bins above the micro-facet, compacted (a base is never evaluated below it), then
+        // the base towards all of them in one call: the wo side once (eval's values).
+        up.clear();
         for (int b = 0; b < B; ++b) {
-            if (!(lwi[size_t(b)].z > 0.f)) continue;
-            const Spectrum &f = fo[size_t(b)];
+            const Vec3 l = fr.to_local(wi[size_t(b)]);
+            if (l.z > 0.f) lwi[up.size()] = l, up.push_back(b);
+        }
+        est.m_base.eval_batch(v.ctx, lwo, lwi.data(), int(up.size()), fo.data());
+        for (size_t u = 0; u < up.size(); ++u) {
+            const int b = up[u];
+            const Spectrum &f = fo[u];
             if (f.is_black()) continue;
             if (depth == 1 && cv) {
                 double *pc = &buf.c[size_t(b) * 3];

@@ -292,7 +292,7 @@ private:
     };
     mutable SeCache m_se_cache;
     mutable std::mutex m_se_mutex;
-    const SeCache &se_cache() const;
+    SeCache se_cache() const;
     ScalingStats m_stats;
 };
 

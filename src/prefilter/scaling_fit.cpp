@@ -493,7 +493,7 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     }
 }
 
-const ScalingEstimator::SeCache &ScalingEstimator::se_cache() const {
+ScalingEstimator::SeCache ScalingEstimator::se_cache() const {
     // The sums change only in a round, so one finish_impl a round serves the pipeline's check
     // (current_S_rel_se) and the next round's stopping rule (S_rel_se_per_wo_bin): each was a
     // whole fit of T and S (0.7 s a level on the bench plane, twice a round).
@@ -506,7 +506,7 @@ const ScalingEstimator::SeCache &ScalingEstimator::se_cache() const {
         m_se_cache.median = m_opt.interreflections ? std::max(s.S_rel_se_median, s.S_ir_rel_se_median) : s.S_rel_se_median;
         m_se_cache.rounds = m_stats.rounds;
     }
-    return m_se_cache;
+    return m_se_cache;  // a copy, made under the lock
 }
 
 double ScalingEstimator::current_S_rel_se() const { return se_cache().median; }
