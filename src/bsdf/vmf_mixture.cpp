@@ -6,6 +6,7 @@
 #include <limits>
 #include <string>
 #include "core/error.h"
+#include "core/f64_lanes.h"
 #include "filter/vmf.h"
 #include "sampling/rng.h"
 
@@ -293,11 +294,15 @@ std::vector<Lobe> spherical_kmeans(const Data &d, std::vector<Dir> centres, cons
 }
 
 /// One E-step: the mean log-likelihood of the lobes, and the responsibility sums N_j, R_j.
+/// Two samples at a time (lanes::F64x2; a missing second sample has weight 0), e^x and ln x
+/// from core/f64_lanes.h; each lane keeps its own sums, added at the end.
 double e_step(const Data &d, const std::vector<Lobe> &lobes, std::vector<double> &N, std::vector<Dir> &R) {
+    using lanes::F64x2;
+    using lanes::splat;
     const size_t K = lobes.size(), n = d.size();
     // log a_j + log_norm(κ_j) + κ_j: the log density at μ·x = 1. (log_norm(κ) + κ re-adds the
     // −κ that log_norm subtracts; the rounding of that is ≤ ulp(κ) ≈ 1e-10 at κ = 1e6.)
-    std::vector<double> c0(K), kh(K), mx(K), my(K), mz(K), l(K);
+    std::vector<double> c0(K), kh(K), mx(K), my(K), mz(K);
     for (size_t j = 0; j < K; ++j) {
         c0[j] = std::log(lobes[j].weight) + vmf::log_norm(lobes[j].kappa) + lobes[j].kappa;
         kh[j] = 0.5 * lobes[j].kappa;
@@ -305,32 +310,37 @@ double e_step(const Data &d, const std::vector<Lobe> &lobes, std::vector<double>
         my[j] = lobes[j].mu.y;
         mz[j] = lobes[j].mu.z;
     }
-    N.assign(K, 0.0);
-    R.assign(K, Dir{0, 0, 0});
-    double L = 0.0;
-    for (size_t i = 0; i < n; ++i) {
-        const double x = d.x[i], y = d.y[i], z = d.z[i], w = d.w[i];
-        double lmax = -std::numeric_limits<double>::infinity();
+    std::vector<F64x2> l(K), sN(K, splat(0.0)), sX(K, splat(0.0)), sY(K, splat(0.0)), sZ(K, splat(0.0));
+    F64x2 sL = splat(0.0);
+    for (size_t i = 0; i < n; i += 2) {
+        const bool pair = i + 1 < n;
+        const F64x2 x{d.x[i], pair ? d.x[i + 1] : 0.0}, y{d.y[i], pair ? d.y[i + 1] : 0.0},
+            z{d.z[i], pair ? d.z[i + 1] : 1.0}, w{d.w[i], pair ? d.w[i + 1] : 0.0};
+        F64x2 lmax = splat(-std::numeric_limits<double>::infinity());
         for (size_t j = 0; j < K; ++j) {
-            const double dx = x - mx[j], dy = y - my[j], dz = z - mz[j];
-            l[j] = c0[j] - kh[j] * (dx * dx + dy * dy + dz * dz);  // κ(μ·x − 1) = −κ|μ − x|²/2
-            lmax = std::max(lmax, l[j]);
+            const F64x2 dx = x - splat(mx[j]), dy = y - splat(my[j]), dz = z - splat(mz[j]);
+            l[j] = splat(c0[j]) - splat(kh[j]) * (dx * dx + dy * dy + dz * dz);  // κ(μ·x − 1) = −κ|μ − x|²/2
+            lmax = lanes::max(lmax, l[j]);
         }
-        double s = 0.0;
-        // Below -746 exp is exactly 0: skipping it there is bit-identical (sharp lobes are far
-        // from most directions, in log terms).
-        for (size_t j = 0; j < K; ++j) s += (l[j] = l[j] - lmax < -746.0 ? 0.0 : std::exp(l[j] - lmax));
-        L += w * (lmax + std::log(s));
-        const double scale = w / s;
+        F64x2 s = splat(0.0);
+        for (size_t j = 0; j < K; ++j) s += (l[j] = lanes::exp_nonpositive(l[j] - lmax));  // the max gives 1
+        sL += w * (lmax + lanes::log_positive(s));
+        const F64x2 scale = w / s;
         for (size_t j = 0; j < K; ++j) {
-            const double g = l[j] * scale;  // w_i γ_ij
-            N[j] += g;
-            R[j].x += g * x;
-            R[j].y += g * y;
-            R[j].z += g * z;
+            const F64x2 g = l[j] * scale;  // w_i γ_ij
+            sN[j] += g;
+            sX[j] += g * x;
+            sY[j] += g * y;
+            sZ[j] += g * z;
         }
     }
-    return L / d.total;
+    N.resize(K);
+    R.resize(K);
+    for (size_t j = 0; j < K; ++j) {
+        N[j] = lanes::hsum(sN[j]);
+        R[j] = Dir{lanes::hsum(sX[j]), lanes::hsum(sY[j]), lanes::hsum(sZ[j])};
+    }
+    return lanes::hsum(sL) / d.total;
 }
 
 /// Plain EM from the start `lobes` (header comment): E-step, convergence test, M-step.
