@@ -151,6 +151,11 @@ SubcommandRegistrar reg_prefilter{
                         "interreflections or h_low; the lines of sight then trace only the difference (0: none)")
              ->capture_default_str()
              ->check(CLI::Range(0, 1 << 20));
+         app.add_option("--shadow-roulette", o->shadow_roulette,
+                        "shadow rays on the original: a next-event term below this times its bin's mean so far is "
+                        "traced with probability term / (that), weighted by the inverse (unbiased; 0: trace all)")
+             ->capture_default_str()
+             ->check(CLI::Range(0.0, 1e6));
          app.add_option("--reciprocity", f->reciprocity,
                         "the effective BRDF's reciprocity (paper 004 eq. 25): every line of sight also estimates the "
                         "transposed bin pair; on = average the two into S (less variance) and report how they agree per "

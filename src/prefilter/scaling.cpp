@@ -20,6 +20,9 @@ using namespace detail;
 
 namespace {
 
+/// Lines of a task (all rounds) before the shadow-ray roulette has a bin mean to go by.
+constexpr double kRouletteLines = 8;
+
 using Clock = std::chrono::steady_clock;
 double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
@@ -126,6 +129,7 @@ struct ScalingEstimator::Task {
     const bool cv;          ///< the control variate (scaling.h) is on
     const bool recip;       ///< the reciprocal estimates are kept (scaling.h, "Reciprocity")
     PCG32 rng;              ///< the original's path continuations (lines and f'_low node sets have their own streams)
+    PCG32 rr;               ///< the shadow-ray roulette's decisions (own stream: the paths do not change)
     std::vector<Vec3> wi;   ///< ωi of every bin for the current line (one random shift of the grid per line)
     int drawn_k = -1;       ///< the line of sight whose directions wi and wo_k hold (start_line)
     Vec3 wo_k;              ///< its ωo
@@ -153,7 +157,8 @@ struct ScalingEstimator::Task {
         : est(e), group(g), task(t), round_seed(seed), M(e.m_opt.M), N(e.m_opt.N), B(e.m_bins),
           pa(int(t / size_t(B)) % M), pb(int(t / size_t(B)) / M), box(int(t % size_t(B)) % N),
           boy(int(t % size_t(B)) / N), base_idx(t * size_t(B) * 3), cv(e.m_opt.cv_lines > 0), recip(!e.m_r1.empty()),
-          rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)), wi(static_cast<size_t>(B)),
+          rng(hash_combine(seed, uint64_t(t)), mix_bits(seed ^ 0x5ca1eULL)),
+          rr(hash_combine(seed ^ 0x5add0ULL, uint64_t(t)), mix_bits(seed ^ 0x7711eULL)), wi(static_cast<size_t>(B)),
           fl(static_cast<size_t>(B)), lwi(static_cast<size_t>(B)), fo(static_cast<size_t>(B)), acc_low(g.size(), 0), low_lines(g.size(), 0), low_rejected(g.size(), 0),
           low_leaked(g.size(), 0), t_low(g.size(), 0.0), w_low(g.size(), 0.0) {}
 
@@ -248,6 +253,12 @@ struct ScalingEstimator::Task {
             if (l.z > 0.f) lwi[up.size()] = l, up.push_back(b);
         }
         est.m_base.eval_batch(v.ctx, lwo, lwi.data(), int(up.size()), fo.data());
+        // The roulette's reference: ε times the bin's mean term per line so far (this round's
+        // lines before this one and the earlier rounds'), of the sum this vertex adds to.
+        const double eps = cv ? 0.0 : est.m_opt.shadow_roulette;
+        const double before = double(est.m_shot[task]) + double(orig_lines) - 1.0;
+        const std::vector<double> &ref_sum = depth == 1 ? est.m_n1 : est.m_nir;
+        const double ref_scale = eps > 0.0 && before >= kRouletteLines ? eps / before : 0.0;
         for (size_t u = 0; u < up.size(); ++u) {
             const int b = up[u];
             const Spectrum &f = fo[u];
@@ -256,10 +267,18 @@ struct ScalingEstimator::Task {
                 double *pc = &buf.c[size_t(b) * 3];
                 for (int q = 0; q < 3; ++q) pc[q] += f[q];
             }
+            Spectrum c = throughput * f;
+            if (ref_scale > 0.0) {
+                const double *m = &ref_sum[base_idx + size_t(b) * 3];
+                const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = c.max() * q_ratio;  // the sums' scale
+                if (cm < ref) {
+                    if (!(rr.next_double() * ref < cm)) continue;  // traced with probability cm / ref
+                    c *= float(ref / cm);  // 1 / probability
+                }
+            }
             if (!unoccluded_by_slope(wi[size_t(b)], est.m_slope_orig) &&
                 est.m_orig.occluded(org, wi[size_t(b)], 0.f, Infinity, v.ox, v.oy))
                 continue;
-            const Spectrum c = throughput * f;
             double *pir = &buf.b[size_t(b) * 3];
             for (int q = 0; q < 3; ++q) pir[q] += c[q];
             if (depth == 1) {

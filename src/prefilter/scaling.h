@@ -124,6 +124,19 @@
 // how they agree (ScalingStats::reciprocity_check; `meso prefilter --reciprocity check`): 1.00
 // in every ring class with the weights above, 1.17-1.22 where ωi is grazing without them.
 //
+// Shadow-ray roulette (shadow_roulette = ε > 0, off with cv_lines > 0). A glossy base sends most
+// of a vertex's next-event terms c = throughput · f towards bins far from its lobe: tiny, yet
+// each needs a shadow ray. A term whose c (largest channel, times the line's weight |Q| / |P|)
+// is below ref = ε · (the bin's mean term per line so far: the task's earlier rounds and this
+// round's earlier lines, of the sum the term goes to; none before 8 lines) is traced with
+// probability c / ref and then counts ref (c / probability): unbiased (the decision depends
+// only on earlier lines), with at most ε · mean · c more variance per term, ε · mean² per line,
+// against a per-line variance that is many mean² for a glossy base. Only on the original:
+// f'_low on h_low is smooth and its shadow rays are few, and the same rule there measured
+// slower (1.013x). Measured (docs/bench.md, "Shadow-ray roulette"): the bench plane's round
+// 24.3 -> 20.7 s at ε = 1 with S's median error 0.0665 -> 0.0666; ε = 4 gains 0.5 s more and
+// costs 0.0675, ε = 16 0.0778.
+//
 // Units: both heightfields in cell space (effective_brdf.h); `low` covers the same tile with
 // W_low = W / F cells (its heights in its own cell units). The low model's material (an
 // SvMultiLobe) is evaluated in the MACRO frame; the original's base in the micro-normal frame.
@@ -167,6 +180,10 @@ struct ScalingOptions {
     /// centres, the points S's lookup interpolates between (table_lookup.cpp); true = jittered,
     /// ωo uniformly in its bin and all ωi bins on one random shift of the grid per line.
     bool jitter_directions = true;
+    /// Shadow-ray roulette on G_orig (see "Shadow-ray roulette" above): a next-event term c
+    /// below this times its bin's mean so far is traced with probability c / (that) and
+    /// weighted by its inverse (0: every term traced; ignored with cv_lines > 0).
+    double shadow_roulette = 1;
     /// Called with the fraction of (patch, ωo bin) tasks of the current round done (any thread,
     /// serialised by the caller's responsibility: it is called under a mutex here).
     std::function<void(double)> progress;
