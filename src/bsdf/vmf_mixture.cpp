@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <string>
 #include "core/error.h"
@@ -97,6 +98,46 @@ inline double chord_half(const Data &d, size_t i, const Dir &c) {
     return 0.5 * (dx * dx + dy * dy + dz * dz);
 }
 
+/// chord_half of samples i and i + 1 (lanes::F64x2).
+inline lanes::F64x2 chord_half2(const Data &d, size_t i, const Dir &c) {
+    using lanes::splat;
+    lanes::F64x2 x, y, z;
+    std::memcpy(&x, &d.x[i], sizeof x), std::memcpy(&y, &d.y[i], sizeof y), std::memcpy(&z, &d.z[i], sizeof z);
+    const lanes::F64x2 dx = x - splat(c.x), dy = y - splat(c.y), dz = z - splat(c.z);
+    return splat(0.5) * (dx * dx + dy * dy + dz * dz);
+}
+
+/// k-means++'s distance of sample i to centre c (chord_half, 0 within kSameDirection).
+inline double seed_distance(const Data &d, size_t i, const Dir &c) {
+    const double di = chord_half(d, i, c);
+    return di < kSameDirection ? 0.0 : di;
+}
+inline lanes::F64x2 seed_distance2(const Data &d, size_t i, const Dir &c) {
+    const lanes::F64x2 di = chord_half2(d, i, c);
+    return di < lanes::splat(kSameDirection) ? lanes::splat(0.0) : di;
+}
+
+/// k-means++'s potential of candidate centre c: Σ w_i min(D(i, c), dmin_i) (dmin nullptr: Σ w_i
+/// D(i, c)), two samples a step in two running sums of two lanes.
+double seed_potential(const Data &d, const Dir &c, const double *dmin) {
+    const size_t n = d.size();
+    lanes::F64x2 acc[2] = {lanes::splat(0.0), lanes::splat(0.0)};
+    size_t i = 0;
+    for (; i + 2 <= n; i += 2) {
+        lanes::F64x2 di = seed_distance2(d, i, c), w;
+        if (dmin) {
+            lanes::F64x2 m;
+            std::memcpy(&m, dmin + i, sizeof m);
+            di = di < m ? di : m;
+        }
+        std::memcpy(&w, &d.w[i], sizeof w);
+        acc[(i >> 1) & 1] += w * di;
+    }
+    double pot = lanes::hsum(acc[0] + acc[1]);
+    for (; i < n; ++i) pot += d.w[i] * (dmin ? std::min(seed_distance(d, i, c), dmin[i]) : seed_distance(d, i, c));
+    return pot;
+}
+
 /// Lobe parameters in double during the fit.
 struct Lobe {
     Dir mu;
@@ -184,7 +225,9 @@ std::vector<Dir> kmeanspp(const Data &d, int K, uint64_t seed) {
             v = d.w;
             potential = d.total;
         } else {
-            for (size_t i = 0; i < n; ++i) potential += (v[i] = d.w[i] * dmin[i]);
+            double acc[4] = {0.0, 0.0, 0.0, 0.0};  // four running sums (one is a chain of additions)
+            for (size_t i = 0; i < n; ++i) acc[i & 3] += (v[i] = d.w[i] * dmin[i]);
+            potential = (acc[0] + acc[2]) + (acc[1] + acc[3]);
         }
         if (!(potential > 0.0)) break;  // every direction is a centre already
         // The first centre is a single draw ∝ w_i (choosing it by the potential would give
@@ -203,12 +246,7 @@ std::vector<Dir> kmeanspp(const Data &d, int K, uint64_t seed) {
         for (size_t p = 0; p < picks.size(); ++p) {
             if (std::find(picks.begin(), picks.begin() + p, picks[p]) != picks.begin() + p) continue;
             const Dir cand{d.x[picks[p]], d.y[picks[p]], d.z[picks[p]]};
-            double pot = 0.0;
-            for (size_t i = 0; i < n; ++i) {
-                double di = chord_half(d, i, cand);
-                if (di < kSameDirection) di = 0.0;
-                pot += d.w[i] * (c == 0 ? di : std::min(di, dmin[i]));
-            }
+            const double pot = seed_potential(d, cand, c == 0 ? nullptr : dmin.data());
             if (pot < best) {
                 best = pot;
                 best_i = picks[p];
@@ -218,8 +256,7 @@ std::vector<Dir> kmeanspp(const Data &d, int K, uint64_t seed) {
         const Dir chosen{d.x[best_i], d.y[best_i], d.z[best_i]};
         centres.push_back(chosen);
         for (size_t i = 0; i < n; ++i) {
-            double di = chord_half(d, i, chosen);
-            if (di < kSameDirection) di = 0.0;
+            const double di = seed_distance(d, i, chosen);
             dmin[i] = c == 0 ? di : std::min(di, dmin[i]);
         }
     }
@@ -240,8 +277,29 @@ std::vector<Lobe> spherical_kmeans(const Data &d, std::vector<Dir> centres, cons
         N.assign(K, 0.0);
         R.assign(K, Dir{0, 0, 0});
         bool changed = false;
-        obj = 0.0;
-        for (size_t i = 0; i < n; ++i) {
+        double objs[2] = {0.0, 0.0};  // two running sums (one is a chain of additions)
+        auto assign_to = [&](size_t i, int best, double best_d) {
+            if (assign[i] != best) changed = true;
+            assign[i] = best;
+            objs[i & 1] += d.w[i] * best_d;
+            N[size_t(best)] += d.w[i];
+            R[size_t(best)].x += d.w[i] * d.x[i];
+            R[size_t(best)].y += d.w[i] * d.y[i];
+            R[size_t(best)].z += d.w[i] * d.z[i];
+        };
+        size_t i = 0;
+        for (; i + 2 <= n; i += 2) {  // the nearest centre of two samples at a time (first of equals)
+            lanes::F64x2 best_d = lanes::splat(std::numeric_limits<double>::infinity()), best = lanes::splat(0.0);
+            for (size_t j = 0; j < K; ++j) {
+                const lanes::F64x2 dj = chord_half2(d, i, centres[j]);
+                const auto closer = dj < best_d;
+                best_d = closer ? dj : best_d;
+                best = closer ? lanes::splat(double(j)) : best;
+            }
+            assign_to(i, int(best[0]), best_d[0]);
+            assign_to(i + 1, int(best[1]), best_d[1]);
+        }
+        for (; i < n; ++i) {
             int best = 0;
             double best_d = std::numeric_limits<double>::infinity();
             for (size_t j = 0; j < K; ++j) {
@@ -251,14 +309,9 @@ std::vector<Lobe> spherical_kmeans(const Data &d, std::vector<Dir> centres, cons
                     best = int(j);
                 }
             }
-            if (assign[i] != best) changed = true;
-            assign[i] = best;
-            obj += d.w[i] * best_d;
-            N[best] += d.w[i];
-            R[best].x += d.w[i] * d.x[i];
-            R[best].y += d.w[i] * d.y[i];
-            R[best].z += d.w[i] * d.z[i];
+            assign_to(i, best, best_d);
         }
+        obj = objs[0] + objs[1];
         // Remove empty clusters (renumbering the assignments), move the centres.
         std::vector<int> remap(K, -1);
         std::vector<Dir> next;
