@@ -250,6 +250,15 @@ TEST(PatchNdf, ProjectedAreaOfALobe) {
         const Vec3 mu = unit(0.3, -0.4, 0.8);
         EXPECT_NEAR(vmf_projected_area(mu, k), vmf::mean_cosine(k) * unit_z(mu), 1e-12) << k;
     }
+    // Either side of the closed form's threshold κ (1 − cos ψ1) = 50 (ψ1 = π/2 − θ_μ): the
+    // quadrature just below it gives the closed form too (the mass beyond ψ1 is ~e^{−50}).
+    for (double z : {0.05, 0.3, 0.9})
+        for (double f : {0.99, 1.01}) {
+            const Vec3 mu = unit(std::sqrt(1 - z * z), 0, z);
+            const double k = f * 50.0 / (1.0 - std::sqrt(1.0 - unit_z(mu) * unit_z(mu)));
+            EXPECT_NEAR(vmf_projected_area(mu, k) / (vmf::mean_cosine(k) * unit_z(mu)), 1.0, 1e-13) << z << " " << f;
+            EXPECT_NEAR(vmf_cap_mass(mu, k), 1.0, 1e-13) << z << " " << f;
+        }
     double worst_sym = 0.0;
     // Symmetry: P(μ) − P(−μ) = ∫ γ_μ ω_z = A₃(κ) μ_z.
     for (double k : {0.0, 0.5, 3.0, 20.0, 1e3, 1e6})
