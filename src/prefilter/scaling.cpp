@@ -273,7 +273,9 @@ struct ScalingEstimator::Task {
                 const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = c.max() * q_ratio;  // the sums' scale
                 if (cm < ref) {
                     if (!(rr.next_double() * ref < cm)) continue;  // traced with probability cm / ref
-                    c *= float(ref / cm);  // 1 / probability
+                    // times 1 / probability, per channel in double: ref / cm may pass float's range
+                    // (c's channels ≤ c.max(), so the products stay ≤ ref / |Q|/|P|).
+                    for (int q = 0; q < 3; ++q) c[q] = float(double(c[q]) * (ref / cm));
                 }
             }
             if (!unoccluded_by_slope(wi[size_t(b)], est.m_slope_orig) &&
