@@ -366,6 +366,8 @@ TEST(CmdPrefilter, BadInputIsNamed) {
               std::string::npos);
     EXPECT_NE(err({"--generator", "fbm", "--wrap", "tile", "-o", "/tmp/x"}).find(R"(--wrap: expected "repeat", "clamp" or "mirror", got "tile")"),
               std::string::npos);
+    EXPECT_NE(err({"--generator", "fbm", "--shadow-roulette", "-1", "-o", "/tmp/x"}).find("--shadow-roulette"),
+              std::string::npos);
     EXPECT_NE(err({"--generator", "fbm"}).find("-o"), std::string::npos);
 }
 
