@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <string>
 #include "core/error.h"
@@ -98,12 +97,21 @@ inline double chord_half(const Data &d, size_t i, const Dir &c) {
     return 0.5 * (dx * dx + dy * dy + dz * dz);
 }
 
-/// chord_half of samples i and i + 1 (lanes::F64x2).
-inline lanes::F64x2 chord_half2(const Data &d, size_t i, const Dir &c) {
+/// Samples i and i + 1 in two lanes (lanes::F64x2); past the end (i + 1 = n) the second lane
+/// repeats sample i with weight 0, so it adds nothing to any weighted sum.
+struct Pair {
+    lanes::F64x2 x, y, z, w;
+};
+inline Pair load_pair(const Data &d, size_t i) {
+    const size_t k = i + 1 < d.size() ? i + 1 : i;
+    return {lanes::F64x2{d.x[i], d.x[k]}, lanes::F64x2{d.y[i], d.y[k]}, lanes::F64x2{d.z[i], d.z[k]},
+            lanes::F64x2{d.w[i], k > i ? d.w[k] : 0.0}};
+}
+
+/// chord_half of a pair.
+inline lanes::F64x2 chord_half2(const Pair &a, const Dir &c) {
     using lanes::splat;
-    lanes::F64x2 x, y, z;
-    std::memcpy(&x, &d.x[i], sizeof x), std::memcpy(&y, &d.y[i], sizeof y), std::memcpy(&z, &d.z[i], sizeof z);
-    const lanes::F64x2 dx = x - splat(c.x), dy = y - splat(c.y), dz = z - splat(c.z);
+    const lanes::F64x2 dx = a.x - splat(c.x), dy = a.y - splat(c.y), dz = a.z - splat(c.z);
     return splat(0.5) * (dx * dx + dy * dy + dz * dz);
 }
 
@@ -112,30 +120,23 @@ inline double seed_distance(const Data &d, size_t i, const Dir &c) {
     const double di = chord_half(d, i, c);
     return di < kSameDirection ? 0.0 : di;
 }
-inline lanes::F64x2 seed_distance2(const Data &d, size_t i, const Dir &c) {
-    const lanes::F64x2 di = chord_half2(d, i, c);
-    return di < lanes::splat(kSameDirection) ? lanes::splat(0.0) : di;
-}
 
 /// k-means++'s potential of candidate centre c: Σ w_i min(D(i, c), dmin_i) (dmin nullptr: Σ w_i
 /// D(i, c)), two samples a step in two running sums of two lanes.
 double seed_potential(const Data &d, const Dir &c, const double *dmin) {
-    const size_t n = d.size();
-    lanes::F64x2 acc[2] = {lanes::splat(0.0), lanes::splat(0.0)};
-    size_t i = 0;
-    for (; i + 2 <= n; i += 2) {
-        lanes::F64x2 di = seed_distance2(d, i, c), w;
+    using lanes::splat;
+    lanes::F64x2 acc[2] = {splat(0.0), splat(0.0)};
+    for (size_t i = 0; i < d.size(); i += 2) {
+        const Pair a = load_pair(d, i);
+        lanes::F64x2 di = chord_half2(a, c);
+        di = di < splat(kSameDirection) ? splat(0.0) : di;
         if (dmin) {
-            lanes::F64x2 m;
-            std::memcpy(&m, dmin + i, sizeof m);
+            const lanes::F64x2 m{dmin[i], i + 1 < d.size() ? dmin[i + 1] : 0.0};
             di = di < m ? di : m;
         }
-        std::memcpy(&w, &d.w[i], sizeof w);
-        acc[(i >> 1) & 1] += w * di;
+        acc[(i >> 1) & 1] += a.w * di;
     }
-    double pot = lanes::hsum(acc[0] + acc[1]);
-    for (; i < n; ++i) pot += d.w[i] * (dmin ? std::min(seed_distance(d, i, c), dmin[i]) : seed_distance(d, i, c));
-    return pot;
+    return lanes::hsum(acc[0] + acc[1]);
 }
 
 /// Lobe parameters in double during the fit.
@@ -287,29 +288,17 @@ std::vector<Lobe> spherical_kmeans(const Data &d, std::vector<Dir> centres, cons
             R[size_t(best)].y += d.w[i] * d.y[i];
             R[size_t(best)].z += d.w[i] * d.z[i];
         };
-        size_t i = 0;
-        for (; i + 2 <= n; i += 2) {  // the nearest centre of two samples at a time (first of equals)
+        for (size_t i = 0; i < n; i += 2) {  // the nearest centre of two samples at a time (first of equals)
+            const Pair a = load_pair(d, i);
             lanes::F64x2 best_d = lanes::splat(std::numeric_limits<double>::infinity()), best = lanes::splat(0.0);
             for (size_t j = 0; j < K; ++j) {
-                const lanes::F64x2 dj = chord_half2(d, i, centres[j]);
+                const lanes::F64x2 dj = chord_half2(a, centres[j]);
                 const auto closer = dj < best_d;
                 best_d = closer ? dj : best_d;
                 best = closer ? lanes::splat(double(j)) : best;
             }
             assign_to(i, int(best[0]), best_d[0]);
-            assign_to(i + 1, int(best[1]), best_d[1]);
-        }
-        for (; i < n; ++i) {
-            int best = 0;
-            double best_d = std::numeric_limits<double>::infinity();
-            for (size_t j = 0; j < K; ++j) {
-                const double dj = chord_half(d, i, centres[j]);
-                if (dj < best_d) {
-                    best_d = dj;
-                    best = int(j);
-                }
-            }
-            assign_to(i, best, best_d);
+            if (i + 1 < n) assign_to(i + 1, int(best[1]), best_d[1]);
         }
         obj = objs[0] + objs[1];
         // Remove empty clusters (renumbering the assignments), move the centres.
@@ -347,7 +336,7 @@ std::vector<Lobe> spherical_kmeans(const Data &d, std::vector<Dir> centres, cons
 }
 
 /// One E-step: the mean log-likelihood of the lobes, and the responsibility sums N_j, R_j.
-/// Two samples at a time (lanes::F64x2; a missing second sample has weight 0), e^x and ln x
+/// Two samples at a time (load_pair: a missing second sample has weight 0), e^x and ln x
 /// from core/f64_lanes.h; each lane keeps its own sums, added at the end.
 double e_step(const Data &d, const std::vector<Lobe> &lobes, std::vector<double> &N, std::vector<Dir> &R) {
     using lanes::F64x2;
@@ -366,9 +355,8 @@ double e_step(const Data &d, const std::vector<Lobe> &lobes, std::vector<double>
     std::vector<F64x2> l(K), sN(K, splat(0.0)), sX(K, splat(0.0)), sY(K, splat(0.0)), sZ(K, splat(0.0));
     F64x2 sL = splat(0.0);
     for (size_t i = 0; i < n; i += 2) {
-        const bool pair = i + 1 < n;
-        const F64x2 x{d.x[i], pair ? d.x[i + 1] : 0.0}, y{d.y[i], pair ? d.y[i + 1] : 0.0},
-            z{d.z[i], pair ? d.z[i + 1] : 1.0}, w{d.w[i], pair ? d.w[i + 1] : 0.0};
+        const Pair a = load_pair(d, i);
+        const F64x2 &x = a.x, &y = a.y, &z = a.z, &w = a.w;
         F64x2 lmax = splat(-std::numeric_limits<double>::infinity());
         for (size_t j = 0; j < K; ++j) {
             const F64x2 dx = x - splat(mx[j]), dy = y - splat(my[j]), dz = z - splat(mz[j]);

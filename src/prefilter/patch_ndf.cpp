@@ -172,10 +172,8 @@ double plane_integral(Vec3 mu, double kappa, bool cap) {
     // azimuths reaches the horizon: g(u) = u c and [·] = 1 closer to μ) is below e^{−κ(1 − cos ψ1)}
     // <= e^{−50}: P = c A₃(κ) and the cap mass 1, up to that mass (the quadrature below, 376 nodes,
     // was a sixth of a logo-sized SVNDF fit).
-    if (c > 0.0) {
-        const double sin_half = std::sin(0.5 * (0.5 * kPi - std::atan2(s, c)));
-        if (kappa * 2.0 * sin_half * sin_half > 50.0) return cap ? 1.0 : c * vmf::mean_cosine(kappa);
-    }
+    // 1 − cos ψ1 = 1 − s = c² / (1 + s), without cancellation.
+    if (c > 0.0 && kappa * (c * c / (1.0 + s)) > 50.0) return cap ? 1.0 : c * vmf::mean_cosine(kappa);
 
     // Lobe frame: ω = u μ + sqrt(1 − u²) (cos φ e1 + sin φ e2), ω_z = a + b cos φ with
     // a = u c, b = sqrt(1 − u²) s ≥ 0. Mean over φ of max(0, a + b cos φ):

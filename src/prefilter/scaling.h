@@ -133,7 +133,7 @@
 // only on earlier lines), with at most ε · mean · c more variance per term, ε · mean² per line,
 // against a per-line variance that is many mean² for a glossy base. Only on the original:
 // f'_low on h_low is smooth and its shadow rays are few, and the same rule there measured
-// slower (1.013x). Measured (docs/bench.md, "Shadow-ray roulette"): the bench plane's round
+// slower (1.013x). Measured (docs/bench.md, session 38): the bench plane's round
 // 24.3 -> 20.7 s at ε = 1 with S's median error 0.0665 -> 0.0666; ε = 4 gains 0.5 s more and
 // costs 0.0675, ε = 16 0.0778.
 //
