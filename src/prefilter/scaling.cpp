@@ -48,10 +48,28 @@ void scale_by(double *x, double f, size_t n) {
     for (; q < n; ++q) x[q] *= f;
 }
 
-int perfect_square_root(int k) {
-    const int g = int(std::lround(std::sqrt(double(k))));
-    return g * g == k ? g : 0;
-}
+/// The strata of K lines over the shooting region Q (scaling.h, "Standard errors"): H = K / 2
+/// cells of a near-square nx x ny grid (ny the largest divisor of H at most √H), two lines each
+/// (lines 2h and 2h + 1 in cell h); an odd K's last line is unstratified.
+struct Strata {
+    int nx = 1, ny = 1, H = 0;
+    explicit Strata(int K) : H(K / 2) {
+        if (H < 1) return;
+        ny = int(std::sqrt(double(H)));
+        while (H % ny) --ny;
+        nx = H / ny;
+    }
+    /// Line k's position in [0, 1)² from two uniforms.
+    void place(int k, double rx, double ry, double &sx, double &sy) const {
+        const int h = k / 2;
+        if (h >= H) {
+            sx = rx, sy = ry;
+        } else {
+            sx = (double(h % nx) + rx) / double(nx);
+            sy = (double(h / nx) + ry) / double(ny);
+        }
+    }
+};
 
 /// Per-line contribution buffers of one task: a = single-bounce (or f'_low) terms of the line,
 /// b = all bounces, c = the first vertex's terms without the shadow test (the control variate).
@@ -193,20 +211,15 @@ struct ScalingEstimator::Task {
         const double cw = double(hf.width()) / M, ch = double(hf.height()) / M;
         return PatchRegion{pa * cw, pb * ch, (pa + 1) * cw, (pb + 1) * ch};
     }
-    /// Shoots line k of K (stratified when K is a perfect square) on field `hf` over patch R;
+    /// Shoots line k on field `hf` over patch R, its position in stratum st (lines 2h, 2h + 1 share one);
     /// the first vertex, or false (counted as leaked or rejected).
-    bool shoot(PCG32 &lr, const Heightfield &hf, const PatchRegion &R, Vec3 wo, int k, int K, bool macro, Vertex &v) {
+    bool shoot(PCG32 &lr, const Heightfield &hf, const PatchRegion &R, Vec3 wo, int k, const Strata &st, bool macro,
+               Vertex &v) {
         const ShootingRegion Q = shooting_region(hf, R, wo);
         q_ratio = Q.area() / ((R.x1 - R.x0) * (R.y1 - R.y0));
-        const int g = perfect_square_root(K);
+        const double rx = lr.next_double(), ry = lr.next_double();
         double sx, sy;
-        if (g > 0) {
-            sx = (double(k % g) + lr.next_double()) / g;
-            sy = (double(k / g) + lr.next_double()) / g;
-        } else {
-            sx = lr.next_double();
-            sy = lr.next_double();
-        }
+        st.place(k, rx, ry, sx, sy);
         const double qx = Q.x0 + (Q.x1 - Q.x0) * sx, qy = Q.y0 + (Q.y1 - Q.y0) * sy;
         const double fqx = std::floor(qx), fqy = std::floor(qy);
         const int64_t ox = int64_t(fqx), oy = int64_t(fqy);
@@ -236,7 +249,7 @@ struct ScalingEstimator::Task {
         PCG32 lr = lr_k;
         wo = wo_k;
         ++lines;
-        return shoot(lr, hf, R, wo, k, K, macro, v);
+        return shoot(lr, hf, R, wo, k, Strata(K), macro, v);
     }
 
     // --- the original microgeometry: paths, next-event towards every ωi bin -----------------
@@ -531,7 +544,7 @@ struct ScalingEstimator::Task {
             drawn_k = -1;  // wi no longer holds a line of sight's directions
             Vertex v;
             ++cv_lines;
-            if (shoot(lr, est.m_orig, R, wo, k, K, false, v)) {
+            if (shoot(lr, est.m_orig, R, wo, k, Strata(K), false, v)) {
                 ++acc_cv;
                 w_cv += q_ratio;
                 if (const Vec3 lwo = v.ctx.frame.to_local(wo); lwo.z > 0.f)
