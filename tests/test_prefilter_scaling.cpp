@@ -475,8 +475,10 @@ namespace {
 /// with `cv_lines` > 0, with the control variate (scaling.h); with `lobes`, f'_low is the closed
 /// form of --flow lobes (evaluated exactly per line instead of by sampled nodes); with `jitter`,
 /// the directions are jittered in their bins (the bins' averages) instead of at their centres;
-/// `roulette`: ScalingOptions::shadow_roulette (scaling.h, "Shadow-ray roulette").
-void check_against_brute_force(int cv_lines, bool lobes = false, bool jitter = false, double roulette = 1.0) {
+/// `roulette`: ScalingOptions::shadow_roulette (scaling.h, "Shadow-ray roulette"); `allocate`:
+/// ScalingOptions::allocate_lines (rounds 2 and 3 with the allocation's unequal counts).
+void check_against_brute_force(int cv_lines, bool lobes = false, bool jitter = false, double roulette = 1.0,
+                               bool allocate = false) {
     std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", "0.05"}, {"seed", "5"}};
     HeightMap map = generate_height_map("fbm", p).height;
     const char *base_json = R"({"type": "conductor", "material": "Al", "alpha": 0.3})";
@@ -487,6 +489,7 @@ void check_against_brute_force(int cv_lines, bool lobes = false, bool jitter = f
     o.cv_lines = cv_lines;
     o.jitter_directions = jitter;
     o.shadow_roulette = roulette;
+    o.allocate_lines = allocate;
     // The target: the median over ωo bins of their errors after the first round (the same
     // first round: same seed), so that about half of the bins stop.
     {
@@ -501,6 +504,9 @@ void check_against_brute_force(int cv_lines, bool lobes = false, bool jitter = f
     for (int r = 0; r < 3; ++r) traced += est.add_round();
     EXPECT_LT(traced, size_t(3 * N * N)) << "the stopping rule traced every bin every round";
     EXPECT_GT(traced, size_t(N * N)) << "the stopping rule traced no bin after the first round";
+    if (allocate) {
+        EXPECT_NE(est.stats().orig_lines, est.stats().low_lines) << "the allocation kept the counts";
+    }
     const EffectiveBrdfEstimator orig_bf(L.orig, *base);
     EffectiveBrdfEstimator::Options mo;
     mo.macro_frame = true;
@@ -538,6 +544,31 @@ TEST(PrefilterScalingEstimator, JitteredDirectionsUnbiasedAgainstBruteForce) { c
 TEST(PrefilterScalingEstimator, NoShadowRouletteUnbiasedAgainstBruteForce) { check_against_brute_force(0, false, false, 0.0); }
 TEST(PrefilterScalingEstimator, StrongShadowRouletteUnbiasedAgainstBruteForce) {
     check_against_brute_force(0, false, true, 16.0);  // most terms by roulette: its weights must be right
+}
+TEST(PrefilterScalingEstimator, AllocatedLinesUnbiasedAgainstBruteForce) {
+    check_against_brute_force(0, false, true, 1.0, true);  // rounds 2 and 3 with other counts per field
+}
+
+TEST(PrefilterScaling, LineAllocationIsTheOptimum) {
+    // scaling.h, "Line allocation". One level: min A / Ko + D / Kl at Ko c_o + Kl c = budget has
+    // Kl / Ko = √(D c_o / (A c)): A = D = 1, c_o = 1, c = 4 gives Kl = Ko / 2, Ko = 100 at 300.
+    int Ko = 0;
+    std::vector<int> Kl;
+    allocate_lines({1.0}, {1.0}, 1.0, {4.0}, 300.0, 2, 400, 1000, Ko, Kl);
+    ASSERT_EQ(Kl.size(), 1u);
+    EXPECT_NEAR(Ko, 100, 4);
+    EXPECT_NEAR(Kl[0], 50, 3);
+    // Two levels, one with a noisy h_low: both reach the same error, below the equal split's worst.
+    allocate_lines({1.0, 1.0}, {4.0, 0.25}, 1.0, {1.0, 1.0}, 300.0, 2, 400, 1000, Ko, Kl);
+    ASSERT_EQ(Kl.size(), 2u);
+    const double v0 = 1.0 / Ko + 4.0 / Kl[0], v1 = 1.0 / Ko + 0.25 / Kl[1];
+    EXPECT_NEAR(v0, v1, 0.05 * v0);
+    EXPECT_LT(std::max(v0, v1), 1.0 / 100 + 4.0 / 100);
+    EXPECT_LE(Ko + Kl[0] + Kl[1], 300 + 2);
+    // A level whose h_low has no noise gets the fewest lines; nothing is ever below a pair.
+    allocate_lines({1.0, 1.0}, {1.0, 0.0}, 1.0, {1.0, 1.0}, 300.0, 2, 400, 1000, Ko, Kl);
+    EXPECT_EQ(Kl[1], 2);
+    EXPECT_GE(Kl[0], 2);
 }
 
 namespace {

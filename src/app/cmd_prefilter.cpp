@@ -156,6 +156,10 @@ SubcommandRegistrar reg_prefilter{
                         "traced with probability term / (that), weighted by the inverse (unbiased; 0: trace all)")
              ->capture_default_str()
              ->check(CLI::Range(0.0, 1e6));
+         app.add_flag("--allocate-lines", o->allocate_lines,
+                      "after the first round, split each round's cost (that of --paths and --low-paths lines) between "
+                      "the original's lines and every level's h_low lines by their measured noise and cost per line "
+                      "(tables then depend on timings, not on the seed alone)");
          app.add_option("--reciprocity", f->reciprocity,
                         "the effective BRDF's reciprocity (paper 004 eq. 25): every line of sight also estimates the "
                         "transposed bin pair; on = average the two into S (less variance) and report how they agree per "

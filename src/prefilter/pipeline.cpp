@@ -110,6 +110,7 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
     model.manifest["parameters"] = {{"scales", o.scales}, {"M", o.M}, {"N", o.N}, {"lobes", o.lobes},
                                     {"interreflections", o.interreflections}, {"paths_per_bin", o.paths},
                                     {"low_paths_per_bin", o.low_paths}, {"low_nodes", o.low_nodes}, {"cv_lines", o.cv_lines}, {"shadow_roulette", o.shadow_roulette},
+                                    {"allocate_lines", o.allocate_lines},
                                     {"reciprocity", o.cv_lines > 0 || o.reciprocity == 0 ? "off" : o.reciprocity == 1 ? "check" : "on"},
                                     {"directions", o.jitter_directions ? "jitter" : "centres"}, {"target_error", o.target_error},
                                     {"max_rounds", o.max_rounds}, {"max_seconds", o.max_seconds}, {"epsilon", o.epsilon}, {"seed", o.seed},
@@ -178,6 +179,7 @@ ScalingOptions scaling_options(const PipelineOptions &o, uint64_t seed) {
     sopt.low_nodes = o.low_nodes;
     sopt.cv_lines = o.cv_lines;
     sopt.shadow_roulette = o.shadow_roulette;
+    sopt.allocate_lines = o.allocate_lines;
     sopt.reciprocity = o.reciprocity == 2;
     sopt.check_reciprocity = o.reciprocity >= 1;
     sopt.jitter_directions = o.jitter_directions;

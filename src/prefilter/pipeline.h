@@ -46,6 +46,7 @@ struct PipelineOptions {
     int reciprocity = 2;
     int cv_lines = 0;  ///< --cv-lines: the control variate's cheap lines (scaling.h, "Control variate")
     double shadow_roulette = 1;  ///< --shadow-roulette (scaling.h, "Shadow-ray roulette"; 0: off)
+    bool allocate_lines = false;  ///< --allocate-lines (scaling.h, "Line allocation")
     double target_error = 0;   ///< --target-error (0: one round)
     int max_rounds = 8;        ///< --max-rounds
     double max_seconds = 0;    ///< --max-seconds: no new T/S round past this model build time (0: none)

@@ -103,6 +103,7 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
     if (opt.max_bounces < 1) throw MesoError("scaling function: max_bounces must be >= 1");
     if (opt.cv_lines < 0) throw MesoError(fmt::format("scaling function: cv_lines = {} must be >= 0", opt.cv_lines));
     m_bins = N * N;
+    m_round_lines = RoundLines{opt.orig_paths, opt.low_paths};
     m_slope_orig = max_slope(orig);
     m_slope_low = max_slope(low);
     const size_t n = size_t(M) * M * m_bins * m_bins * 3;
@@ -444,13 +445,16 @@ struct ScalingEstimator::Task {
     /// line on the original is traced once and its terms go to every level of the group; each
     /// level traces its own h_low line k.
     void trace_lines(double &t_orig) {
-        const int Ko = est.m_opt.orig_paths, Kl = est.m_opt.low_paths;
-        const bool ir = est.m_opt.interreflections, paired = Ko == Kl;
+        // This round's counts (ScalingEstimator::m_round_lines: the options', or the allocation's).
+        const int Ko = est.m_round_lines.orig;
+        const bool ir = est.m_opt.interreflections;
         const size_t G = group.size();
+        int Kmax = Ko;
+        for (const ScalingEstimator *e : group) Kmax = std::max(Kmax, e->m_round_lines.low);
         LineBuf o[2] = {LineBuf(B), LineBuf(B)};
         LineBuf r[2] = {LineBuf(recip ? B : 0), LineBuf(recip ? B : 0)};  // the transposed pairs' terms
         std::vector<LineBuf> l(2 * G, LineBuf(B));  // level j's pair: l[2 j], l[2 j + 1]
-        for (int k = 0; k < std::max(Ko, Kl); ++k) {
+        for (int k = 0; k < Kmax; ++k) {
             const int s = k & 1;
             if (k < Ko) {
                 const auto t0 = Clock::now();
@@ -477,7 +481,9 @@ struct ScalingEstimator::Task {
                 }
                 t_orig += seconds_since(t0);
             }
-            for (size_t j = 0; j < G && k < Kl; ++j) {
+            for (size_t j = 0; j < G; ++j) {
+                const int Kl = group[j]->m_round_lines.low;
+                if (k >= Kl) continue;
                 const auto t0 = Clock::now();
                 LineBuf &lb = l[2 * j + size_t(s)];
                 lb.clear();
@@ -490,11 +496,13 @@ struct ScalingEstimator::Task {
                 t_low[j] += seconds_since(t0);
             }
             // A complete pair (k - 1, k) of a field, or its unpaired last line k (partner 0).
-            const bool o_pair = k < Ko && (s == 1 || k == Ko - 1), l_pair = k < Kl && (s == 1 || k == Kl - 1);
-            if (!o_pair && !l_pair) continue;
+            const bool o_pair = k < Ko && (s == 1 || k == Ko - 1);
             const bool whole = s == 1;
             for (size_t j = 0; j < G; ++j) {
                 ScalingEstimator &e = *group[j];
+                const int Kl = e.m_round_lines.low;
+                const bool l_pair = k < Kl && (s == 1 || k == Kl - 1), paired = Ko == Kl;
+                if (!o_pair && !l_pair) continue;
                 const bool lead = j == 0;  // the numerator-only sums: the lead's alone (share_numerators)
                 const LineBuf &l0 = l[2 * j], &l1 = l[2 * j + 1];
                 add_pair(o_pair ? &o[0].a : nullptr, o_pair && whole ? &o[1].a : nullptr, l_pair ? &l0.a : nullptr,
@@ -666,7 +674,71 @@ size_t ScalingEstimator::add_round_impl(const std::vector<ScalingEstimator *> &g
         e->m_stats.tasks_traced += active.size();
         ++e->m_stats.rounds;
     }
+    if (m_opt.allocate_lines) allocate_next_round(group);
     return active.size();
+}
+
+void allocate_lines(const std::vector<double> &A, const std::vector<double> &D, double c_o, const std::vector<double> &c,
+                    double budget, int ko_min, int ko_max, int kl_max, int &Ko, std::vector<int> &Kl) {
+    const size_t G = A.size();
+    double best = Infinity;
+    for (int ko = std::max(2, ko_min); ko <= ko_max; ko += std::max(1, ko / 32)) {
+        const double rem = budget - double(ko) * c_o;
+        if (!(rem > 0)) break;
+        // cost(V): what the levels' h_low lines cost to reach error² V each (decreasing in V).
+        double floor_v = 0;
+        for (size_t j = 0; j < G; ++j) floor_v = std::max(floor_v, A[j] / ko);
+        auto cost = [&](double V) {
+            double t = 0;
+            for (size_t j = 0; j < G; ++j)
+                if (D[j] > 0) t += c[j] * D[j] / (V - A[j] / ko);
+            return t;
+        };
+        double lo = floor_v, hi = floor_v > 0 ? 2 * floor_v : 1e-300;
+        for (int i = 0; i < 2000 && cost(hi) > rem; ++i) hi *= 2;
+        for (int i = 0; i < 100; ++i) {
+            const double mid = 0.5 * (lo + hi);
+            if (!(mid > lo && mid < hi)) break;
+            (cost(mid) > rem ? lo : hi) = mid;
+        }
+        if (hi < best) {
+            best = hi, Ko = ko;
+            Kl.assign(G, 2);
+            for (size_t j = 0; j < G; ++j)
+                if (D[j] > 0) Kl[j] = int(std::clamp(std::ceil(D[j] / (hi - A[j] / ko)), 2.0, double(kl_max)));
+        }
+    }
+}
+
+void ScalingEstimator::allocate_next_round(const std::vector<ScalingEstimator *> &group) {
+    const ScalingEstimator &lead = *group.front();
+    const ScalingOptions &o = lead.m_opt;
+    const size_t G = group.size();
+    const double tasks = double(o.M) * o.M * lead.m_bins;
+    // The levels' fits of this round's sums, side by side (the stopping rule's, cached for it).
+    std::vector<SeCache> se(G);
+    tbb::parallel_for(size_t(0), G, [&](size_t j) { se[j] = group[j]->se_cache(); });
+    std::vector<double> A(G), D(G), c(G);
+    double t_orig = 0;
+    for (size_t j = 0; j < G; ++j) {
+        const ScalingStats &st = group[j]->m_stats;
+        t_orig += st.core_seconds_orig;  // each level holds an equal share
+        A[j] = se[j].rel_var[0] * double(st.orig_lines) / tasks;
+        D[j] = se[j].rel_var[1] * double(st.low_lines) / tasks;
+        c[j] = st.low_lines > 0 ? st.core_seconds_low / double(st.low_lines) : 0.0;
+    }
+    const double c_o = lead.m_stats.orig_lines > 0 ? t_orig / double(lead.m_stats.orig_lines) : 0.0;
+    bool ok = c_o > 0 && std::isfinite(c_o);
+    double budget = double(o.orig_paths) * c_o;
+    for (size_t j = 0; j < G; ++j) {
+        ok = ok && A[j] > 0 && std::isfinite(A[j]) && D[j] >= 0 && std::isfinite(D[j]) && c[j] > 0 && std::isfinite(c[j]);
+        budget += double(o.low_paths) * c[j];
+    }
+    if (!ok) return;  // nothing measured yet (or nothing to measure): the counts stay
+    int Ko = o.orig_paths;
+    std::vector<int> Kl(G, o.low_paths);
+    allocate_lines(A, D, c_o, c, budget, 2, 4 * o.orig_paths, 8 * std::max(o.orig_paths, o.low_paths), Ko, Kl);
+    for (size_t j = 0; j < G; ++j) group[j]->m_round_lines = RoundLines{Ko, Kl[j]};
 }
 
 void ScalingEstimator::share_round(const ScalingStats &before, const std::vector<size_t> &active) {

@@ -143,6 +143,20 @@
 // 24.3 -> 20.7 s at ε = 1 with S's median error 0.0665 -> 0.0666; ε = 4 gains 0.5 s more and
 // costs 0.0675, ε = 16 0.0778.
 //
+// Line allocation (allocate_lines; `meso prefilter --allocate-lines`). A level's S error per round
+// is about A / Ko + D / Kl: A the original's variance per line (its relative error², the median
+// over bin pairs, times the lines so far), D its h_low's, Ko and Kl the lines per task. The
+// original's line serves every level of a chain; each level pays for its own h_low lines, and
+// their noise differs: on the bench plane's chain (twill, one round of 256 original and 64 h_low
+// lines against 32) D is 0.135 at x16 (h_low 32², still rough) and 0.012 at x64, against A 0.45.
+// After the first round (equal counts, as given), every round chooses Ko and each Kl_j that
+// minimise the largest level's A_j / Ko + D_j / Kl_j at the cost of the given counts, from the
+// variances so far and the measured seconds per line (allocate_lines() above: a search over Ko,
+// then the Kl_j that give every level the same error). Unequal counts lose the common random
+// numbers' covariance for those lines (the delta method then omits it, which is conservative:
+// the correlation is positive). The counts depend on timings, so tables are not reproducible
+// to the bit from the seed (nor between MPI and one process) with it; without it they are.
+//
 // Units: both heightfields in cell space (effective_brdf.h); `low` covers the same tile with
 // W_low = W / F cells (its heights in its own cell units). The low model's material (an
 // SvMultiLobe) is evaluated in the MACRO frame; the original's base in the micro-normal frame.
@@ -190,6 +204,10 @@ struct ScalingOptions {
     /// below this times its bin's mean so far is traced with probability c / (that) and
     /// weighted by its inverse (0: every term traced; ignored with cv_lines > 0).
     double shadow_roulette = 1;
+    /// Line allocation (see "Line allocation" above): after the first round, each round's lines on
+    /// the original and on every level's h_low are chosen from the measured variances and costs
+    /// per line, at the cost of orig_paths and low_paths lines (tables then depend on timings).
+    bool allocate_lines = false;
     /// Called with the fraction of (patch, ωo bin) tasks of the current round done (any thread,
     /// serialised by the caller's responsibility: it is called under a mutex here).
     std::function<void(double)> progress;
@@ -283,7 +301,10 @@ private:
     void share_round(const ScalingStats &before, const std::vector<size_t> &active);
     double denom_mean(int ch) const;
     /// finish(); with per_bo, also S_rel_se_per_wo_bin (and no rank-1 check: the stopping rule).
-    void finish_impl(ScalingTables &single, ScalingTables &ir, ScalingStats &stats, std::vector<double> *per_bo) const;
+    /// rel_var (with per_bo): the median relative variances of S's numerator and denominator
+    /// (of the table, single or ir, with the larger median error) for the line allocation.
+    void finish_impl(ScalingTables &single, ScalingTables &ir, ScalingStats &stats, std::vector<double> *per_bo,
+                     double *rel_var = nullptr) const;
 
     const Heightfield &m_orig, &m_low;
     const Material &m_base;
@@ -312,11 +333,27 @@ private:
         int rounds = -1;
         double median = 0;
         std::vector<double> per_bo;
+        double rel_var[2] = {0, 0};  ///< finish_impl's rel_var
     };
     mutable SeCache m_se_cache;
     mutable std::mutex m_se_mutex;
     SeCache se_cache() const;
     ScalingStats m_stats;
+    /// Lines per (patch, ωo bin) of the next round (the options' counts, or the allocation's).
+    struct RoundLines {
+        int orig = 0, low = 0;
+    };
+    RoundLines m_round_lines;
+    /// After a round of `group` (allocate_lines): the next round's counts for every level.
+    static void allocate_next_round(const std::vector<ScalingEstimator *> &group);
 };
+
+/// The line allocation's optimum (ScalingOptions::allocate_lines): given per level j the
+/// original's and h_low's variances per line of S's relative error (A_j, D_j) and the seconds per
+/// line of the original (c_o, one line serves every level) and of level j's h_low (c_j), the
+/// counts Ko, Kl_j that minimise max_j (A_j / Ko + D_j / Kl_j) at the cost Ko c_o + Σ Kl_j c_j =
+/// budget; Ko in [ko_min, ko_max], each Kl_j in [2, kl_max].
+void allocate_lines(const std::vector<double> &A, const std::vector<double> &D, double c_o, const std::vector<double> &c,
+                    double budget, int ko_min, int ko_max, int kl_max, int &Ko, std::vector<int> &Kl);
 
 }  // namespace meso::prefilter

@@ -281,6 +281,9 @@ struct TableStats {
            ts_err = 0, paper_err = 0;
     std::vector<double> sv;
     std::vector<double> pair_rel;  ///< S's relative standard error per bin pair j (-1: not estimated)
+    /// Medians over the bin pairs of the numerator's and the denominator's relative variance
+    /// (va / a², vd / d² of S's delta method: the line allocation's A and D before per-line scaling).
+    double rel_var_num = 0, rel_var_den = 0;
     double reciprocity[3] = {0, 0, 0};  ///< ReciprocityCheck's ratios (0: not checked)
     bool reciprocity_used = false;      ///< the tables are the reciprocal average's
 };
@@ -297,7 +300,7 @@ void standard_errors(const BinPairMoments &m, const Rank1Factors &f, const std::
                      const std::vector<uint32_t> &count_low, int P, int N, TableStats &o) {
     const int B = N * N;
     const size_t BB = m.BB;
-    std::vector<double> s_rel, s_rel_outer, s_rel_paper;
+    std::vector<double> s_rel, s_rel_outer, s_rel_paper, rv_num, rv_den;
     o.pair_rel.assign(BB, -1.0);
     auto outer = [&](int b) { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; };
     for (size_t j = 0; j < BB; ++j) {
@@ -317,8 +320,10 @@ void standard_errors(const BinPairMoments &m, const Rank1Factors &f, const std::
             s_rel_paper.push_back(std::sqrt(va_p / (a * a) + vd_p / (d * d)));
             s_rel.push_back(rel);
             if (outer(bi) && outer(bo)) s_rel_outer.push_back(rel);
+            rv_num.push_back(va / (a * a)), rv_den.push_back(vd / (d * d));
         }
     }
+    o.rel_var_num = median_of(rv_num), o.rel_var_den = median_of(rv_den);
     o.med = median_of(s_rel);
     o.p90 = quantile_of(s_rel, 0.9);
     o.mx = s_rel.empty() ? 0.0 : *std::max_element(s_rel.begin(), s_rel.end());
@@ -426,7 +431,7 @@ void per_wo_bin_medians(const std::vector<double> &pair_rel, int B, std::vector<
 }  // namespace
 
 void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab, ScalingStats &stats,
-                                   std::vector<double> *per_bo) const {
+                                   std::vector<double> *per_bo, double *rel_var) const {
     const int M = m_opt.M, N = m_opt.N, B = m_bins, P = M * M;
     stats = m_stats;
     // One table set: moments, rank-1 factors, tables, then the diagnostics of the fit.
@@ -472,6 +477,7 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     for (int k = 0; k < 3; ++k) stats.reciprocity_check[k] = o1.reciprocity[k];
     stats.reciprocity_used = o1.reciprocity_used;
     if (per_bo) per_wo_bin_medians(o1.pair_rel, B, *per_bo);
+    if (rel_var) rel_var[0] = o1.rel_var_num, rel_var[1] = o1.rel_var_den;
     if (m_opt.interreflections) {
         TableStats o2;
         build(true, ir_tab, o2);
@@ -488,6 +494,7 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
             per_wo_bin_medians(o2.pair_rel, B, ir_bo);
             for (int b = 0; b < B; ++b) (*per_bo)[size_t(b)] = std::max((*per_bo)[size_t(b)], ir_bo[size_t(b)]);
         }
+        if (rel_var && o2.med > o1.med) rel_var[0] = o2.rel_var_num, rel_var[1] = o2.rel_var_den;
     } else {
         ir_tab = ScalingTables{};
     }
@@ -502,7 +509,7 @@ ScalingEstimator::SeCache ScalingEstimator::se_cache() const {
         ScalingTables a, b;
         ScalingStats s;
         m_se_cache.per_bo.clear();
-        finish_impl(a, b, s, &m_se_cache.per_bo);
+        finish_impl(a, b, s, &m_se_cache.per_bo, m_se_cache.rel_var);
         m_se_cache.median = m_opt.interreflections ? std::max(s.S_rel_se_median, s.S_ir_rel_se_median) : s.S_rel_se_median;
         m_se_cache.rounds = m_stats.rounds;
     }
