@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 #include "cli_capture.h"
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -356,6 +357,29 @@ TEST(PrefilteredMaterial, SquareToHemisphereIsTheDoubleMap) {
         EXPECT_NEAR(w.z, ez, 3e-7 + 3e-6 * ez) << u.x << ", " << u.y;  // relative at grazing angles
     }
     std::printf("square_to_hemisphere: max distance %.3g from the double map\n", worst);
+}
+
+TEST(PrefilteredMaterial, SquareToHemisphereGridIsTheScalarMap) {
+    // The four-lane grid (the prefilter's ωi bins of a line) against the scalar map, bit for bit:
+    // odd and even N, shifts at the cell corners and centres (N odd with shift 0.5: the centre,
+    // straight up), random shifts.
+    PCG32 rng(7, 8);
+    for (int N : {1, 2, 3, 4, 5, 15, 16, 64}) {
+        std::vector<Vec3> g(size_t(N) * N);
+        for (int t = 0; t < 40; ++t) {
+            float sa = rng.next_float(), sb = rng.next_float();
+            if (t == 0) sa = sb = 0.f;
+            if (t == 1) sa = sb = 0.5f;
+            if (t == 2) sa = 0.99999994f, sb = 0.f;
+            square_to_hemisphere_grid(N, sa, sb, g.data());
+            for (int b = 0; b < N * N; ++b) {
+                const Vec3 w = square_to_hemisphere(Vec2((float(b % N) + sa) / float(N), (float(b / N) + sb) / float(N)));
+                ASSERT_EQ(std::memcmp(&w, &g[size_t(b)], sizeof(Vec3)), 0)
+                    << "N " << N << " bin " << b << " shift " << sa << ", " << sb << ": " << g[size_t(b)].x << " "
+                    << g[size_t(b)].y << " " << g[size_t(b)].z << " against " << w.x << " " << w.y << " " << w.z;
+            }
+        }
+    }
 }
 
 // ------------------------------------------------------------------ (d) sampling

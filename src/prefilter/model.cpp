@@ -4,6 +4,7 @@
 #include <tbb/parallel_for.h>
 #include <algorithm>
 #include <cmath>
+#include <smmintrin.h>
 #include <filesystem>
 #include <fmt/format.h>
 #include <fstream>
@@ -69,6 +70,59 @@ Vec3 square_to_hemisphere(Vec2 u) {
     // On the square's border (rho = 1) z is cos(pi / 2) as the map in double gives it, not 0: a
     // direction of the grid stays above the horizon.
     return Vec3(k * d.x, k * d.y, std::max(z, 6.123234e-17f));
+}
+
+void square_to_hemisphere_grid(int N, float sa, float sb, Vec3 *out) {
+    // square_to_hemisphere (and square_to_uniform_disk_concentric, sincos_quarter, sincos_half_pi)
+    // in four SSE lanes, every operation in the scalar code's order: no FMA below x86-64-v3, so
+    // each lane rounds as the scalar map does (tested bit for bit).
+    const int B = N * N;
+    const float fN = float(N);
+    const __m128 one = _mm_set1_ps(1.f), two = _mm_set1_ps(2.f), zero = _mm_setzero_ps();
+    const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7fffffff));
+    auto mul = [](__m128 a, __m128 b) { return _mm_mul_ps(a, b); };
+    auto add = [](__m128 a, __m128 b) { return _mm_add_ps(a, b); };
+    auto c = [](float v) { return _mm_set1_ps(v); };
+    int b = 0;
+    for (; b + 4 <= B; b += 4) {
+        alignas(16) float ux[4], uy[4];
+        for (int l = 0; l < 4; ++l)
+            ux[l] = (float((b + l) % N) + sa) / fN, uy[l] = (float((b + l) / N) + sb) / fN;
+        const __m128 ox = _mm_sub_ps(mul(two, _mm_load_ps(ux)), one), oy = _mm_sub_ps(mul(two, _mm_load_ps(uy)), one);
+        const __m128 ax = _mm_and_ps(ox, abs_mask), ay = _mm_and_ps(oy, abs_mask);
+        const __m128 rho = _mm_min_ps(one, _mm_max_ps(ay, ax));  // std::min(1, std::max(|ox|, |oy|))
+        // The concentric disk point d.
+        const __m128 x_major = _mm_cmpgt_ps(ax, ay);
+        const __m128 r = _mm_blendv_ps(oy, ox, x_major), other = _mm_blendv_ps(ox, oy, x_major);
+        const __m128 q = _mm_and_ps(_mm_div_ps(other, r), _mm_cmpneq_ps(r, zero));
+        const __m128 x = mul(c(PiOver4), q), z = mul(x, x);
+        const __m128 sq = add(x, mul(mul(x, z),
+                                     add(c(-1.6666667e-1f),
+                                         mul(z, add(c(8.3333333e-3f), mul(z, add(c(-1.9841270e-4f), mul(z, c(2.7557319e-6f)))))))));
+        const __m128 cq = add(one, mul(z, add(c(-0.5f), mul(z, add(c(4.1666667e-2f),
+                                       mul(z, add(c(-1.3888889e-3f), mul(z, add(c(2.4801587e-5f), mul(z, c(-2.7557319e-7f)))))))))));
+        const __m128 pa = mul(r, cq), pb = mul(r, sq);
+        const __m128 dx = _mm_blendv_ps(pb, pa, x_major), dy = _mm_blendv_ps(pa, pb, x_major);
+        const __m128 len2 = add(mul(dx, dx), mul(dy, dy));
+        // θ = ρ π / 2: cos θ = sin t, sin θ = cos t with t = (1 - ρ) π / 2 (sincos_half_pi).
+        const __m128 t = mul(_mm_sub_ps(one, rho), c(PiOver2)), tz = mul(t, t), tz2 = mul(tz, tz), tz4 = mul(tz2, tz2);
+        const __m128 ps = add(add(_mm_sub_ps(mul(c(8.3333333e-3f), tz), c(1.6666667e-1f)),
+                                  mul(_mm_sub_ps(mul(c(2.7557319e-6f), tz), c(1.9841270e-4f)), tz2)),
+                              mul(c(-2.5052108e-8f), tz4));
+        const __m128 pc = add(add(_mm_sub_ps(mul(c(4.1666667e-2f), tz), c(0.5f)),
+                                  mul(_mm_sub_ps(mul(c(2.4801587e-5f), tz), c(1.3888889e-3f)), tz2)),
+                              mul(_mm_sub_ps(mul(c(2.0876757e-9f), tz), c(2.7557319e-7f)), tz4));
+        const __m128 cz = add(t, mul(mul(t, tz), ps)), st = add(one, mul(tz, pc));
+        const __m128 k = _mm_div_ps(st, _mm_sqrt_ps(len2));
+        // The centre (ρ = 0, or a zero disk point): straight up.
+        const __m128 up = _mm_and_ps(_mm_cmpgt_ps(rho, zero), _mm_cmpgt_ps(len2, zero));
+        alignas(16) float wx[4], wy[4], wz[4];
+        _mm_store_ps(wx, _mm_and_ps(mul(k, dx), up));
+        _mm_store_ps(wy, _mm_and_ps(mul(k, dy), up));
+        _mm_store_ps(wz, _mm_blendv_ps(one, _mm_max_ps(cz, c(6.123234e-17f)), up));
+        for (int l = 0; l < 4; ++l) out[b + l] = Vec3(wx[l], wy[l], wz[l]);
+    }
+    for (; b < B; ++b) out[b] = square_to_hemisphere(Vec2((float(b % N) + sa) / fN, (float(b / N) + sb) / fN));
 }
 
 Spectrum ScalingTables::S_bin(int bi, int bo) const {

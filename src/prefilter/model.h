@@ -71,6 +71,10 @@ Vec2 hemisphere_to_square(Vec3 w);
 Vec2 hemisphere_to_square_fast(Vec3 w);
 /// Square coordinates to the hemisphere (the inverse of hemisphere_to_square).
 Vec3 square_to_hemisphere(Vec2 u);
+/// square_to_hemisphere of every cell of an N x N grid shifted by (sa, sb) in cell units: out[b]
+/// for u = ((b % N + sa) / N, (b / N + sb) / N), b < N², four cells a step; the same bits as the
+/// scalar map (the prefilter's ωi bins of a line: 225 directions each).
+void square_to_hemisphere_grid(int N, float sa, float sb, Vec3 *out);
 
 /// T (M x M) and S (N² x N²) of one level, RGB.
 struct ScalingTables {

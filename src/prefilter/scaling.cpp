@@ -204,8 +204,7 @@ struct ScalingEstimator::Task {
         }
         wo = square_to_hemisphere(Vec2((float(box) + j[0]) / float(N), (float(boy) + j[1]) / float(N)));
         const float sa = j[2], sb = j[3];
-        for (int b = 0; b < B; ++b)
-            wi[size_t(b)] = square_to_hemisphere(Vec2((float(b % N) + sa) / float(N), (float(b / N) + sb) / float(N)));
+        square_to_hemisphere_grid(N, sa, sb, wi.data());
     }
     /// Patch P of this task in a field's cell space.
     PatchRegion patch_of(const Heightfield &hf) const {
