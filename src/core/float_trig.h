@@ -38,14 +38,16 @@ inline float rsqrt(float x) {
 }
 
 /// sin and cos of r in [-pi/2, pi/2] (sincos_0_2pi's polynomials, no reduction): within 3e-7
-/// absolute, and sin keeps its relative accuracy as r goes to 0 (r + r z p(z)).
-inline void sincos_half_pi(float r, float &s, float &c) {
+/// absolute, and sin keeps its relative accuracy as r goes to 0 (r + r z p(z)). T: float, or a
+/// GCC vector of floats (__m128: lanes, each rounded as the float version).
+template <class T>
+inline void sincos_half_pi(T r, T &s, T &c) {
     // The Taylor polynomials in z = r^2 by Estrin's scheme (pairs of coefficients, then z^2 and
     // z^4): half the dependent multiply-adds of Horner's, same coefficients.
-    const float z = r * r, z2 = z * z, z4 = z2 * z2;
-    const float ps = (8.3333333e-3f * z - 1.6666667e-1f) + (2.7557319e-6f * z - 1.9841270e-4f) * z2 +
+    const T z = r * r, z2 = z * z, z4 = z2 * z2;
+    const T ps = (8.3333333e-3f * z - 1.6666667e-1f) + (2.7557319e-6f * z - 1.9841270e-4f) * z2 +
                      -2.5052108e-8f * z4;  // -1/6 + z/120 - ... - z^4/11!
-    const float pc = (4.1666667e-2f * z - 0.5f) + (2.4801587e-5f * z - 1.3888889e-3f) * z2 +
+    const T pc = (4.1666667e-2f * z - 0.5f) + (2.4801587e-5f * z - 1.3888889e-3f) * z2 +
                      (2.0876757e-9f * z - 2.7557319e-7f) * z4;  // -1/2 + z/24 - ... + z^5/12!
     s = r + r * z * ps;
     c = 1.f + z * pc;

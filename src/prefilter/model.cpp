@@ -73,9 +73,10 @@ Vec3 square_to_hemisphere(Vec2 u) {
 }
 
 void square_to_hemisphere_grid(int N, float sa, float sb, Vec3 *out) {
-    // square_to_hemisphere (and square_to_uniform_disk_concentric, sincos_quarter, sincos_half_pi)
-    // in four SSE lanes, every operation in the scalar code's order: no FMA below x86-64-v3, so
-    // each lane rounds as the scalar map does (tested bit for bit).
+    // square_to_hemisphere and square_to_uniform_disk_concentric in four SSE lanes, every
+    // operation in the scalar code's order and the same polynomials (sincos_quarter and
+    // sincos_half_pi on __m128): no FMA below x86-64-v3, so each lane rounds as the scalar map
+    // does (tested bit for bit).
     const int B = N * N;
     const float fN = float(N);
     const __m128 one = _mm_set1_ps(1.f), two = _mm_set1_ps(2.f), zero = _mm_setzero_ps();
@@ -95,24 +96,14 @@ void square_to_hemisphere_grid(int N, float sa, float sb, Vec3 *out) {
         const __m128 x_major = _mm_cmpgt_ps(ax, ay);
         const __m128 r = _mm_blendv_ps(oy, ox, x_major), other = _mm_blendv_ps(ox, oy, x_major);
         const __m128 q = _mm_and_ps(_mm_div_ps(other, r), _mm_cmpneq_ps(r, zero));
-        const __m128 x = mul(c(PiOver4), q), z = mul(x, x);
-        const __m128 sq = add(x, mul(mul(x, z),
-                                     add(c(-1.6666667e-1f),
-                                         mul(z, add(c(8.3333333e-3f), mul(z, add(c(-1.9841270e-4f), mul(z, c(2.7557319e-6f)))))))));
-        const __m128 cq = add(one, mul(z, add(c(-0.5f), mul(z, add(c(4.1666667e-2f),
-                                       mul(z, add(c(-1.3888889e-3f), mul(z, add(c(2.4801587e-5f), mul(z, c(-2.7557319e-7f)))))))))));
+        __m128 sq, cq;
+        sincos_quarter(mul(c(PiOver4), q), sq, cq);
         const __m128 pa = mul(r, cq), pb = mul(r, sq);
         const __m128 dx = _mm_blendv_ps(pb, pa, x_major), dy = _mm_blendv_ps(pa, pb, x_major);
         const __m128 len2 = add(mul(dx, dx), mul(dy, dy));
         // θ = ρ π / 2: cos θ = sin t, sin θ = cos t with t = (1 - ρ) π / 2 (sincos_half_pi).
-        const __m128 t = mul(_mm_sub_ps(one, rho), c(PiOver2)), tz = mul(t, t), tz2 = mul(tz, tz), tz4 = mul(tz2, tz2);
-        const __m128 ps = add(add(_mm_sub_ps(mul(c(8.3333333e-3f), tz), c(1.6666667e-1f)),
-                                  mul(_mm_sub_ps(mul(c(2.7557319e-6f), tz), c(1.9841270e-4f)), tz2)),
-                              mul(c(-2.5052108e-8f), tz4));
-        const __m128 pc = add(add(_mm_sub_ps(mul(c(4.1666667e-2f), tz), c(0.5f)),
-                                  mul(_mm_sub_ps(mul(c(2.4801587e-5f), tz), c(1.3888889e-3f)), tz2)),
-                              mul(_mm_sub_ps(mul(c(2.0876757e-9f), tz), c(2.7557319e-7f)), tz4));
-        const __m128 cz = add(t, mul(mul(t, tz), ps)), st = add(one, mul(tz, pc));
+        __m128 cz, st;
+        sincos_half_pi(mul(_mm_sub_ps(one, rho), c(PiOver2)), cz, st);
         const __m128 k = _mm_div_ps(st, _mm_sqrt_ps(len2));
         // The centre (ρ = 0, or a zero disk point): straight up.
         const __m128 up = _mm_and_ps(_mm_cmpgt_ps(rho, zero), _mm_cmpgt_ps(len2, zero));

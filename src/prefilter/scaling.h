@@ -151,7 +151,7 @@
 // lines against 32) D is 0.135 at x16 (h_low 32², still rough) and 0.012 at x64, against A 0.45.
 // After the first round (equal counts, as given), every round chooses Ko and each Kl_j that
 // minimise the largest level's A_j / Ko + D_j / Kl_j at the cost of the given counts, from the
-// variances so far and the measured seconds per line (allocate_lines() above: a search over Ko,
+// variances so far and the measured seconds per line (allocate_lines() below: a search over Ko,
 // then the Kl_j that give every level the same error). Unequal counts lose the common random
 // numbers' covariance for those lines (the delta method then omits it, which is conservative:
 // the correlation is positive). The counts depend on timings, so tables are not reproducible
@@ -301,7 +301,7 @@ private:
     void share_round(const ScalingStats &before, const std::vector<size_t> &active);
     double denom_mean(int ch) const;
     /// finish(); with per_bo, also S_rel_se_per_wo_bin (and no rank-1 check: the stopping rule).
-    /// rel_var (with per_bo): the median relative variances of S's numerator and denominator
+    /// rel_var (nullable, two entries): the median relative variances of S's numerator and denominator
     /// (of the table, single or ir, with the larger median error) for the line allocation.
     void finish_impl(ScalingTables &single, ScalingTables &ir, ScalingStats &stats, std::vector<double> *per_bo,
                      double *rel_var = nullptr) const;

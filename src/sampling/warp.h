@@ -6,9 +6,10 @@ namespace meso {
 
 /// sin and cos of x in [-pi/4, pi/4] by Taylor polynomials of degree 9 / 10 (truncation below
 /// 2e-9: what is left is float rounding, within 1.2e-7 of the exact values; test
-/// Warp.ConcentricDiskMatchesTheDoubleMap): no libm call.
-inline void sincos_quarter(float x, float &s, float &c) {
-    const float z = x * x;
+/// Warp.ConcentricDiskMatchesTheDoubleMap): no libm call. T: float, or a GCC vector of floats.
+template <class T>
+inline void sincos_quarter(T x, T &s, T &c) {
+    const T z = x * x;
     s = x + x * z * (-1.6666667e-1f + z * (8.3333333e-3f + z * (-1.9841270e-4f + z * 2.7557319e-6f)));
     c = 1.f + z * (-0.5f + z * (4.1666667e-2f + z * (-1.3888889e-3f + z * (2.4801587e-5f + z * -2.7557319e-7f))));
 }
