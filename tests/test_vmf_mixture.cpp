@@ -559,3 +559,87 @@ TEST(VmfMixture, Timing) {
         std::printf("  6 lobes, n = %zu: %.3f s CPU, %.3f s wall, %d iterations\n", n, cpu, s, fit.iterations);
     }
 }
+
+// reduce_vmf_lobes: the groups' moments (weight and mean direction vector Σ w A₃(κ) μ) are kept,
+// a sharp lobe and broad lobes around it stay apart (the cost is the likelihood lost, not the
+// angle), identical lobes merge into themselves, K >= n changes nothing but the weights' sum.
+TEST(VmfMixture, ReduceLobesKeepsMomentsAndSharpLobesApart) {
+    VmfEmOptions opt;
+    opt.exact_kappa = true;
+    opt.max_kappa = 1e9;
+    const Vec3 z(0.f, 0.f, 1.f), b = unit(std::sin(5 / kDeg), 0, std::cos(5 / kDeg)),
+               c = unit(0, std::sin(8 / kDeg), std::cos(8 / kDeg));
+    const std::vector<VmfLobe> in = {{z, 1e9, 1.0}, {b, 20.0, 0.6}, {c, 25.0, 0.4}};
+    const std::vector<VmfLobe> two = reduce_vmf_lobes(in, 2, opt);
+    ASSERT_EQ(two.size(), 2u);
+    const VmfLobe &sharp = two[0].kappa > two[1].kappa ? two[0] : two[1];
+    const VmfLobe &broad = two[0].kappa > two[1].kappa ? two[1] : two[0];
+    EXPECT_NEAR(sharp.weight, 0.5, 1e-12);
+    EXPECT_GT(sharp.kappa, 0.99e9);
+    EXPECT_GT(dot(sharp.mu, z), 1.f - 1e-6f);
+    EXPECT_NEAR(broad.weight, 0.5, 1e-12);
+    double R[3] = {0, 0, 0};
+    for (size_t i = 1; i < 3; ++i) {
+        const double r = in[i].weight * vmf::mean_cosine(in[i].kappa);
+        R[0] += r * in[i].mu.x, R[1] += r * in[i].mu.y, R[2] += r * in[i].mu.z;
+    }
+    const double len = std::sqrt(R[0] * R[0] + R[1] * R[1] + R[2] * R[2]);
+    EXPECT_NEAR(broad.kappa, vmf::kappa_from_mean_cosine(len / 1.0), 1e-6 * broad.kappa);  // μ through float
+    EXPECT_GT(dot(broad.mu, unit(R[0], R[1], R[2])), 1.f - 1e-6f);
+    EXPECT_LT(broad.kappa, 0.6 * 20.0 + 0.4 * 25.0);  // the two directions' spread widens the merged lobe
+    // Identical lobes: one lobe, the same κ.
+    const std::vector<VmfLobe> same3 = {{b, 50.0, 1.0}, {b, 50.0, 2.0}, {b, 50.0, 0.5}};
+    const std::vector<VmfLobe> one = reduce_vmf_lobes(same3, 1, opt);
+    ASSERT_EQ(one.size(), 1u);
+    EXPECT_NEAR(one[0].kappa, 50.0, 1e-8);
+    EXPECT_NEAR(one[0].weight, 1.0, 1e-12);
+    // K >= n: the lobes, weights normalised; deterministic.
+    const std::vector<VmfLobe> all = reduce_vmf_lobes(in, 6, opt);
+    ASSERT_EQ(all.size(), 3u);
+    for (size_t i = 0; i < 3; ++i) {
+        EXPECT_NEAR(all[i].weight, in[i].weight / 2.0, 1e-12);
+        EXPECT_NEAR(all[i].kappa / in[i].kappa, 1.0, 1e-9);
+        EXPECT_GT(dot(all[i].mu, in[i].mu), 1.f - 1e-6f);
+    }
+    const std::vector<VmfLobe> again = reduce_vmf_lobes(in, 2, opt);
+    ASSERT_EQ(again.size(), two.size());
+    for (size_t i = 0; i < two.size(); ++i) EXPECT_EQ(std::memcmp(&again[i], &two[i], sizeof(VmfLobe)), 0);
+    // Unusable lobes are ignored; none usable: empty; K < 1 throws.
+    const std::vector<VmfLobe> bad = {{z, 10.0, NAN}, {Vec3(0.f, 0.f, 0.f), 10.0, 1.0}, {z, NAN, -1.0}};
+    EXPECT_TRUE(reduce_vmf_lobes(bad, 2, opt).empty());
+    std::vector<VmfLobe> mixed = bad;
+    mixed.push_back({b, NAN, 2.0});  // NaN κ: a uniform lobe
+    const std::vector<VmfLobe> m1 = reduce_vmf_lobes(mixed, 2, opt);
+    ASSERT_EQ(m1.size(), 1u);
+    EXPECT_EQ(m1[0].kappa, 0.0);
+    EXPECT_THROW(reduce_vmf_lobes(in, 0, opt), MesoError);
+}
+
+// fit_vmf_mixture_from: from a perturbed copy of the truth it reaches the k-means++ starts'
+// maximum (or a higher one) in fewer M-steps; an empty start is fit_vmf_mixture; a start with
+// more lobes than opt.lobes throws.
+TEST(VmfMixture, FitFromStartReachesTheMaximumInFewerSteps) {
+    const std::vector<VmfLobe> truth = {
+        {unit(0, 0, 1), 20.0, 0.5}, {unit(0.3, 0, 1), 60.0, 0.3}, {unit(-0.1, 0.3, 1), 200.0, 0.2}};
+    const std::vector<Vec3> dirs = draw(truth, 60000, 37);
+    VmfEmOptions opt;
+    opt.lobes = 3;
+    opt.exact_kappa = true;
+    const VmfMixture km = fit_vmf_mixture(dirs.data(), nullptr, dirs.size(), opt);
+    std::vector<VmfLobe> start = truth;
+    start[0].mu = unit(0.05, 0, 1), start[1].kappa = 40.0, start[2].weight = 0.3;
+    const VmfMixture from = fit_vmf_mixture_from(dirs.data(), nullptr, dirs.size(), start, opt);
+    expect_well_formed(from, opt);
+    EXPECT_TRUE(from.converged);
+    EXPECT_GE(from.log_likelihood, km.log_likelihood - 1e-5 * (1 + std::abs(km.log_likelihood)));
+    EXPECT_LT(from.iterations, km.iterations);
+    std::printf("three overlapping lobes: k-means++ start %d M-steps (L %.7f), near start %d (L %.7f)\n",
+                km.iterations, km.log_likelihood, from.iterations, from.log_likelihood);
+    const VmfMixture none = fit_vmf_mixture_from(dirs.data(), nullptr, dirs.size(), {}, opt);
+    ASSERT_EQ(none.lobes.size(), km.lobes.size());
+    EXPECT_EQ(none.log_likelihood, km.log_likelihood);
+    std::vector<VmfLobe> four = truth;
+    four.push_back(truth[0]);
+    EXPECT_THROW(fit_vmf_mixture_from(dirs.data(), nullptr, dirs.size(), four, opt), MesoError);
+    EXPECT_TRUE(fit_vmf_mixture_from(dirs.data(), nullptr, 0, start, opt).lobes.empty());
+}

@@ -180,6 +180,11 @@ SubcommandRegistrar reg_prefilter{
              ->check(CLI::NonNegativeNumber);
          app.add_option("--ndf-samples", o->samples_per_cell, "n x n micro-normals per fine cell for the NDF fit")->capture_default_str()
              ->check(CLI::Range(1, 32));
+         app.add_option("--ndf-start", o->ndf_from_children,
+                        "where each patch's vMF EM starts: children (a level whose factor is a multiple of the previous "
+                        "level's: its children's lobes, merged; faster) or kmeans (k-means++ starts at every level)")
+             ->transform(CLI::CheckedTransformer(std::map<std::string, bool>{{"kmeans", false}, {"children", true}}))
+             ->default_str("children");
          app.add_option("--quadrature", o->quad_polar, "f'_low quadrature: nodes per lobe in the vMF CDF variable")->capture_default_str()
              ->check(CLI::Range(1, 64));
          app.add_option("--quadrature-azimuth", o->quad_azimuth, "f'_low quadrature: azimuthal nodes")->capture_default_str()

@@ -512,28 +512,11 @@ void check_options(const VmfEmOptions &opt) {
     if (!(opt.max_kappa > 0.0) || std::isinf(opt.max_kappa)) fail("max_kappa must be positive and finite");
 }
 
-}  // namespace
 
-VmfMixture fit_vmf_mixture(const Vec3 *dirs, const double *weights, size_t n, const VmfEmOptions &opt) {
-    check_options(opt);
+/// EM from `lobes` (dropping the light ones first), then the output: lobes sorted by weight,
+/// weights renormalised, in float directions.
+VmfMixture em_from(const Data &d, std::vector<Lobe> lobes, const VmfEmOptions &opt) {
     VmfMixture out;
-    if (n == 0 || !dirs) return out;
-    const Data d = prepare(dirs, weights, n);
-    if (d.size() == 0 || !(d.total > 0.0)) return out;  // empty mixture (header comment)
-
-    // k-means++ and Lloyd from init_restarts streams; the lowest k-means objective wins (ties:
-    // the first), a cheap guard against the local optima of a single greedy seeding.
-    std::vector<Lobe> lobes;
-    double best_obj = std::numeric_limits<double>::infinity();
-    for (int r = 0; r < opt.init_restarts; ++r) {
-        double obj = 0.0;
-        std::vector<Lobe> l = spherical_kmeans(d, kmeanspp(d, opt.lobes, mix_bits(opt.seed + uint64_t(r))), opt, &obj);
-        if (obj < best_obj || lobes.empty()) {
-            best_obj = obj;
-            lobes.swap(l);
-        }
-        if (!(obj > 0.0)) break;  // every direction is a centre: nothing to improve
-    }
     drop_light_lobes(lobes, opt.min_weight);
 
     std::vector<double> N;
@@ -556,6 +539,134 @@ VmfMixture fit_vmf_mixture(const Vec3 *dirs, const double *weights, size_t n, co
         out.lobes.push_back(v);
     }
     return out;
+}
+
+/// The usable lobes of a start (finite weight > 0, non-zero finite μ, normalised; κ clamped to
+/// [0, max_kappa], NaN as 0), in their order, weights as given.
+std::vector<Lobe> usable_lobes(const std::vector<VmfLobe> &in, const VmfEmOptions &opt) {
+    std::vector<Lobe> out;
+    for (const VmfLobe &v : in) {
+        const double x = v.mu.x, y = v.mu.y, z = v.mu.z, len = std::sqrt(x * x + y * y + z * z);
+        if (!(v.weight > 0.0) || !std::isfinite(v.weight) || !(len > 0.0) || !std::isfinite(len)) continue;
+        Lobe l;
+        l.mu = {x / len, y / len, z / len};
+        l.kappa = std::clamp(std::isnan(v.kappa) ? 0.0 : v.kappa, 0.0, opt.max_kappa);
+        l.weight = v.weight;
+        l.order = int(out.size());
+        out.push_back(l);
+    }
+    return out;
+}
+
+}  // namespace
+
+namespace {
+/// N ℓ(|R| / N): the group's mass times the expected log-density of its moment-matched lobe,
+/// ℓ(r) = log C(κ) + κ r (κ by Banerjee's rule, for speed); 0 for an empty group.
+double group_value(double N, const Dir &R) {
+    if (!(N > 0.0)) return 0.0;
+    const double r = std::min(1.0, std::sqrt(R.x * R.x + R.y * R.y + R.z * R.z) / N);
+    const double k = std::min(vmf::kappa_from_r(r), vmf::kMaxKappa);
+    if (!(k > 1e-8)) return N * -std::log(4.0 * 3.14159265358979323846);  // uniform
+    // log C(κ) + κ r = log κ − log 2π − κ (1 − r) − log(1 − e^{−2κ})
+    return N * (std::log(k) - std::log(2.0 * 3.14159265358979323846) - k * (1.0 - r) - std::log1p(-std::exp(-2.0 * k)));
+}
+}  // namespace
+
+std::vector<VmfLobe> reduce_vmf_lobes(const std::vector<VmfLobe> &in, int K, const VmfEmOptions &opt) {
+    check_options(opt);
+    if (K < 1) throw MesoError("reduce_vmf_lobes: K must be >= 1, got " + std::to_string(K));
+    const std::vector<Lobe> l = usable_lobes(in, opt);
+    // Groups: mass N = Σ w and mean direction vector R = Σ w A₃(κ) μ (a vMF lobe's); merged
+    // greedily, cheapest first, where the cost is the loss of expected log-likelihood
+    // N_a ℓ_a + N_b ℓ_b − N_ab ℓ_ab (>= 0): lobes that coincide merge for free, a sharp lobe and
+    // a broad one around it stay apart (a merge by direction alone blurred flat patches' deltas
+    // into their neighbours' broad lobes, and EM did not recover them).
+    const size_t n = l.size();
+    std::vector<double> N(n), V(n);
+    std::vector<Dir> R(n);
+    std::vector<bool> alive(n, true);
+    for (size_t i = 0; i < n; ++i) {
+        const double r = l[i].weight * vmf::mean_cosine(l[i].kappa);
+        N[i] = l[i].weight;
+        R[i] = {r * l[i].mu.x, r * l[i].mu.y, r * l[i].mu.z};
+        V[i] = group_value(N[i], R[i]);
+    }
+    auto merged_R = [&](size_t a, size_t b) { return Dir{R[a].x + R[b].x, R[a].y + R[b].y, R[a].z + R[b].z}; };
+    std::vector<double> cost(n * n, 0.0);
+    auto set_cost = [&](size_t a, size_t b) {
+        cost[a * n + b] = cost[b * n + a] = V[a] + V[b] - group_value(N[a] + N[b], merged_R(a, b));
+    };
+    for (size_t a = 0; a < n; ++a)
+        for (size_t b = a + 1; b < n; ++b) set_cost(a, b);
+    for (size_t groups = n; groups > size_t(K); --groups) {
+        size_t ba = n, bb = n;
+        for (size_t a = 0; a < n; ++a)
+            for (size_t b = a + 1; b < n && alive[a]; ++b)
+                if (alive[b] && (ba == n || cost[a * n + b] < cost[ba * n + bb])) ba = a, bb = b;
+        R[ba] = merged_R(ba, bb);
+        N[ba] += N[bb];
+        V[ba] = group_value(N[ba], R[ba]);
+        alive[bb] = false;
+        for (size_t c = 0; c < n; ++c)
+            if (alive[c] && c != ba) set_cost(ba, c);
+    }
+    std::vector<Lobe> g;
+    std::vector<double> gN;
+    std::vector<Dir> gR;
+    for (size_t i = 0; i < n; ++i)
+        if (alive[i]) g.push_back(l[i]), gN.push_back(N[i]), gR.push_back(R[i]);
+    lobes_from_sums(g, gN, gR, opt);  // μ = R / |R| (μ kept where R = 0), κ by opt's rule
+    std::vector<VmfLobe> out;
+    for (const Lobe &x : g) {
+        if (!(x.weight > 0.0)) continue;
+        VmfLobe v;
+        v.mu = Vec3(float(x.mu.x), float(x.mu.y), float(x.mu.z));
+        v.kappa = x.kappa;
+        v.weight = x.weight;
+        out.push_back(v);
+    }
+    return out;
+}
+
+VmfMixture fit_vmf_mixture_from(const Vec3 *dirs, const double *weights, size_t n, const std::vector<VmfLobe> &start,
+                                const VmfEmOptions &opt) {
+    check_options(opt);
+    std::vector<Lobe> lobes = usable_lobes(start, opt);
+    if (lobes.empty()) return fit_vmf_mixture(dirs, weights, n, opt);
+    if (int(lobes.size()) > opt.lobes)
+        throw MesoError("fit_vmf_mixture_from: " + std::to_string(lobes.size()) + " start lobes, more than lobes = " +
+                        std::to_string(opt.lobes));
+    if (n == 0 || !dirs) return {};
+    const Data d = prepare(dirs, weights, n);
+    if (d.size() == 0 || !(d.total > 0.0)) return {};  // empty mixture (header comment)
+    double total = 0.0;
+    for (const Lobe &l : lobes) total += l.weight;
+    for (Lobe &l : lobes) l.weight /= total;
+    return em_from(d, std::move(lobes), opt);
+}
+
+VmfMixture fit_vmf_mixture(const Vec3 *dirs, const double *weights, size_t n, const VmfEmOptions &opt) {
+    check_options(opt);
+    VmfMixture out;
+    if (n == 0 || !dirs) return out;
+    const Data d = prepare(dirs, weights, n);
+    if (d.size() == 0 || !(d.total > 0.0)) return out;  // empty mixture (header comment)
+
+    // k-means++ and Lloyd from init_restarts streams; the lowest k-means objective wins (ties:
+    // the first), a cheap guard against the local optima of a single greedy seeding.
+    std::vector<Lobe> lobes;
+    double best_obj = std::numeric_limits<double>::infinity();
+    for (int r = 0; r < opt.init_restarts; ++r) {
+        double obj = 0.0;
+        std::vector<Lobe> l = spherical_kmeans(d, kmeanspp(d, opt.lobes, mix_bits(opt.seed + uint64_t(r))), opt, &obj);
+        if (obj < best_obj || lobes.empty()) {
+            best_obj = obj;
+            lobes.swap(l);
+        }
+        if (!(obj > 0.0)) break;  // every direction is a centre: nothing to improve
+    }
+    return em_from(d, std::move(lobes), opt);
 }
 
 double mixture_pdf(const VmfMixture &mixture, Vec3 w) {

@@ -106,6 +106,22 @@ struct VmfEmOptions {
 /// weights[i] (weights may be nullptr: all 1). See the header comment for the details.
 VmfMixture fit_vmf_mixture(const Vec3 *dirs, const double *weights, size_t n, const VmfEmOptions &opt = {});
 
+/// fit_vmf_mixture's EM (SQUAREM or plain, the same convergence test and output rules) started
+/// from `start` instead of the k-means++ starts: a good start (a finer patch's lobes merged by
+/// reduce_vmf_lobes) needs fewer M-steps and skips k-means. Start lobes with a weight that is not
+/// finite and > 0, or a zero μ, are ignored; the weights are renormalised. No usable start lobe:
+/// fit_vmf_mixture. More usable start lobes than opt.lobes throws MesoError.
+VmfMixture fit_vmf_mixture_from(const Vec3 *dirs, const double *weights, size_t n, const std::vector<VmfLobe> &start,
+                                const VmfEmOptions &opt = {});
+
+/// Merges weighted vMF lobes (weights need not sum to 1) into at most K: greedily, the pair whose
+/// merge loses the least expected log-likelihood first (N_a ℓ_a + N_b ℓ_b − N_ab ℓ_ab, ℓ(r) =
+/// log C(κ) + κ r of the moment-matched lobe), each group's lobe moment-matched (weight Σ w, mean
+/// direction vector Σ w A₃(κ) μ / Σ w: μ, and κ by opt's rule; what an M-step gives on the
+/// group's directions). Deterministic. Unusable lobes (as fit_vmf_mixture_from) are ignored;
+/// the result's weights sum to 1, or it is empty.
+std::vector<VmfLobe> reduce_vmf_lobes(const std::vector<VmfLobe> &lobes, int K, const VmfEmOptions &opt = {});
+
 /// The mixture density Σ a_j γ(w; μ_j, κ_j) (per steradian; 0 for an empty mixture).
 double mixture_pdf(const VmfMixture &mixture, Vec3 w);
 

@@ -77,14 +77,16 @@ void patch_normals_impl(const Heightfield &hf, int factor, int I, int J, const P
         }
 }
 
+/// Patch (I, J)'s fit; from `start` when it is given (fit_vmf_mixture_from), else k-means++.
 PatchNdf fit_impl(const Heightfield &hf, int factor, int I, int J, const PatchNdfOptions &opt,
                   const std::vector<double> &gx, const std::vector<double> &gw, std::vector<Vec3> &dirs,
-                  std::vector<double> &weights) {
+                  std::vector<double> &weights, const std::vector<VmfLobe> *start = nullptr) {
     patch_normals_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
     PatchNdf out;
     double area = 0.0;
     for (double w : weights) area += w;
-    VmfMixture mix = fit_vmf_mixture(dirs.data(), weights.data(), dirs.size(), opt.em);
+    VmfMixture mix = start ? fit_vmf_mixture_from(dirs.data(), weights.data(), dirs.size(), *start, opt.em)
+                           : fit_vmf_mixture(dirs.data(), weights.data(), dirs.size(), opt.em);
     out.lobes = std::move(mix.lobes);
     out.log_likelihood = mix.log_likelihood;
     out.iterations = mix.iterations;
@@ -117,8 +119,20 @@ PatchNdf fit_patch_ndf(const Heightfield &hf, int factor, int I, int J, const Pa
     return fit_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
 }
 
-std::vector<PatchNdf> fit_svndf(const Heightfield &hf, int factor, const PatchNdfOptions &opt) {
+namespace {
+/// fit_svndf, from the children's lobes in `finer` (factor finer_factor) when it is given.
+std::vector<PatchNdf> fit_svndf_impl(const Heightfield &hf, int factor, const PatchNdfOptions &opt,
+                                     const std::vector<PatchNdf> *finer, int finer_factor) {
     validate(hf, factor, opt);
+    if (finer) {
+        if (finer_factor < 1 || factor % finer_factor != 0)
+            throw MesoError(fmt::format("patch NDF: the finer fit's factor {} must divide {}", finer_factor, factor));
+        validate(hf, finer_factor, opt);
+        const size_t want = size_t(hf.width() / finer_factor) * size_t(hf.height() / finer_factor);
+        if (finer->size() != want)
+            throw MesoError(fmt::format("patch NDF: the finer fit has {} patches, the map has {} at factor {}",
+                                        finer->size(), want, finer_factor));
+    }
     // Options fit_vmf_mixture would reject: fail once here rather than inside a TBB task.
     {
         const Vec3 z(0.f, 0.f, 1.f);
@@ -129,10 +143,28 @@ std::vector<PatchNdf> fit_svndf(const Heightfield &hf, int factor, const PatchNd
     std::vector<double> gx, gw;
     gauss_legendre_01(opt.samples_per_cell, gx, gw);
     std::vector<PatchNdf> out(size_t(nx) * ny);
+    const int r = finer ? factor / finer_factor : 0, fnx = finer ? hf.width() / finer_factor : 0;
     auto run_range = [&](int begin, int end) {
         std::vector<Vec3> dirs;
         std::vector<double> weights;
-        for (int p = begin; p < end; ++p) out[size_t(p)] = fit_impl(hf, factor, p % nx, p / nx, opt, gx, gw, dirs, weights);
+        std::vector<VmfLobe> children, start;
+        for (int p = begin; p < end; ++p) {
+            const int I = p % nx, J = p / nx;
+            if (!finer) {
+                out[size_t(p)] = fit_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
+                continue;
+            }
+            // The children's lobes as masses: a child's weights sum to 1 over its own normals,
+            // whose total weight is its area ratio.
+            children.clear();
+            for (int b = 0; b < r; ++b)
+                for (int a = 0; a < r; ++a) {
+                    const PatchNdf &c = (*finer)[size_t(J * r + b) * size_t(fnx) + size_t(I * r + a)];
+                    for (VmfLobe l : c.lobes) l.weight *= c.area_ratio, children.push_back(l);
+                }
+            start = reduce_vmf_lobes(children, opt.em.lobes, opt.em);
+            out[size_t(p)] = fit_impl(hf, factor, I, J, opt, gx, gw, dirs, weights, &start);
+        }
     };
     const int count = nx * ny;
     if (opt.threads == 1) {
@@ -150,6 +182,16 @@ std::vector<PatchNdf> fit_svndf(const Heightfield &hf, int factor, const PatchNd
         }
     }
     return out;
+}
+}  // namespace
+
+std::vector<PatchNdf> fit_svndf(const Heightfield &hf, int factor, const PatchNdfOptions &opt) {
+    return fit_svndf_impl(hf, factor, opt, nullptr, 0);
+}
+
+std::vector<PatchNdf> fit_svndf_from(const Heightfield &hf, int factor, const std::vector<PatchNdf> &finer,
+                                     int finer_factor, const PatchNdfOptions &opt) {
+    return fit_svndf_impl(hf, factor, opt, &finer, finer_factor);
 }
 
 double patch_ndf_eval(const PatchNdf &ndf, Vec3 w) {

@@ -4,6 +4,8 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <future>
+#include <thread>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <memory>
@@ -115,6 +117,7 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
                                     {"directions", o.jitter_directions ? "jitter" : "centres"}, {"target_error", o.target_error},
                                     {"max_rounds", o.max_rounds}, {"max_seconds", o.max_seconds}, {"epsilon", o.epsilon}, {"seed", o.seed},
                                     {"ndf_samples_per_cell", o.samples_per_cell},
+                                    {"ndf_start", o.ndf_from_children ? "children" : "kmeans"},
                                     {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
                                     {"flow_projected_area", o.flow_projected_area && !o.flow_lobes},
                                     {"flow", flow_name(model.quadrature)}, {"albedo", "patch_mean"}, {"lambert_view", "visible"},
@@ -129,19 +132,25 @@ struct OriginalFields {
     Heightfield cells, map_units;
 };
 
-/// §4.1: h_low by least squares of the slopes (eq. 9-10), as a float map.
-HeightMap least_squares_stage(const HeightMap &map, int F, nlohmann::json &timing) {
+/// §4.1: h_low by least squares of the slopes (eq. 9-10), as a float map, and its seconds.
+struct LowStage {
+    HeightMap h_low;
+    double seconds = 0;
+};
+LowStage least_squares_stage(const HeightMap &map, int F) {
     const auto t0 = Clock::now();
     const LowResHeights low = downsample_least_squares(map, F, true, kLsqW);
-    HeightMap h_low(low.width, low.height);
-    for (size_t k = 0; k < low.h.size(); ++k) h_low.h[k] = float(low.h[k]);
-    timing["least_squares_s"] = since(t0);
-    return h_low;
+    LowStage out{HeightMap(low.width, low.height), 0.0};
+    for (size_t k = 0; k < low.h.size(); ++k) out.h_low.h[k] = float(low.h[k]);
+    out.seconds = since(t0);
+    return out;
 }
 
 /// §4.2: the patch NDFs (eq. 4) of the original, one per coarse cell.
+/// With a finer level (`finer` at factor finer_F dividing F, and --ndf-start children), every
+/// patch's EM starts from its children's lobes (fit_svndf_from).
 std::vector<PatchNdf> svndf_stage(const PipelineOptions &o, const HeightMap &map, const Heightfield &map_units, int F,
-                                  nlohmann::json &timing) {
+                                  const std::vector<PatchNdf> *finer, int finer_F, nlohmann::json &timing) {
     const auto t0 = Clock::now();
     PatchNdfOptions nopt;
     nopt.samples_per_cell = o.samples_per_cell;
@@ -153,8 +162,10 @@ std::vector<PatchNdf> svndf_stage(const PipelineOptions &o, const HeightMap &map
     // still cuts nodes off for ωo within 0.06° of the horizon; 1e9 (vmf.h's limit) makes
     // that 3e-5 rad.
     nopt.em.max_kappa = 1e9;
-    std::vector<PatchNdf> ndf = fit_svndf(map_units, F, nopt);
+    const bool from = o.ndf_from_children && finer && finer_F > 0 && F % finer_F == 0;
+    std::vector<PatchNdf> ndf = from ? fit_svndf_from(map_units, F, *finer, finer_F, nopt) : fit_svndf(map_units, F, nopt);
     timing["svndf_fit_s"] = since(t0);
+    timing["svndf_start"] = from ? fmt::format("x{} children", finer_F) : std::string("kmeans++");
     return ndf;
 }
 
@@ -163,7 +174,7 @@ struct LevelWork {
     PrefilteredLevel L;
     nlohmann::json timing;
     size_t converged = 0;
-    double mean_it = 0;
+    double mean_it = 0, mean_ll = 0;  ///< the SVNDF fit's mean M-steps and log-likelihood a patch
     std::shared_ptr<SvMultiLobe> low_mat;
     std::unique_ptr<Heightfield> low_field;
     std::unique_ptr<ScalingEstimator> est;
@@ -278,18 +289,26 @@ nlohmann::json stats_json(const ScalingStats &s, bool ir) {
 }
 
 /// One level's h_low, SVNDF and f'_low (factor F), before its T / S.
+/// `finer`: the previous level (nullptr for the first), whose SVNDF may start this one's.
+/// `low`: its h_low, solved on another thread meanwhile (the sparse solve is serial: it ran
+/// beside the fits, which keep every core busy, instead of before them with one core idle).
 LevelWork prepare_level(const PipelineOptions &o, int F, const Inputs &in, const OriginalFields &orig,
-                        const QuadratureOptions &quadrature) {
+                        const QuadratureOptions &quadrature, const PrefilteredLevel *finer,
+                        std::future<LowStage> &low) {
     LevelWork w;
     PrefilteredLevel &L = w.L;
     L.factor = F;
-    L.h_low = least_squares_stage(in.map, F, w.timing);
-    L.ndf = svndf_stage(o, in.map, orig.map_units, F, w.timing);
-    for (const auto &p : L.ndf) w.converged += p.converged, w.mean_it += p.iterations;
+    L.ndf = svndf_stage(o, in.map, orig.map_units, F, finer ? &finer->ndf : nullptr, finer ? finer->factor : 0, w.timing);
+    LowStage ls = low.get();
+    L.h_low = std::move(ls.h_low);
+    w.timing["least_squares_s"] = ls.seconds;
+    double ll = 0;
+    for (const auto &p : L.ndf) w.converged += p.converged, w.mean_it += p.iterations, ll += p.log_likelihood;
     w.mean_it /= double(std::max<size_t>(1, L.ndf.size()));
-    if (dist::rank() == 0) std::fprintf(stderr, "  x%d: h_low %dx%d (%.2f s), SVNDF %zu patches (%.2f s, %.0f EM iterations on average)\n", F,
+    w.mean_ll = ll / double(std::max<size_t>(1, L.ndf.size()));
+    if (dist::rank() == 0) std::fprintf(stderr, "  x%d: h_low %dx%d (%.2f s), SVNDF %zu patches (%.2f s, from %s, %.0f EM iterations and log-likelihood %.4f on average)\n", F,
                  L.h_low.width, L.h_low.height, w.timing["least_squares_s"].get<double>(), L.ndf.size(),
-                 w.timing["svndf_fit_s"].get<double>(), w.mean_it);
+                 w.timing["svndf_fit_s"].get<double>(), w.timing["svndf_start"].get<std::string>().c_str(), w.mean_it, w.mean_ll);
     const auto t0 = Clock::now();
     w.low_mat = std::make_shared<SvMultiLobe>(in.base, L.ndf, L.h_low.width, L.h_low.height, quadrature,
                                                in.base_json, "--base");
@@ -308,6 +327,7 @@ void finish_level(const PipelineOptions &o, LevelWork &w, const ScalingStats &st
     L.stats = stats_json(st, ir);
     L.stats["timing"] = w.timing;
     L.stats["svndf"] = {{"converged_patches", w.converged}, {"mean_em_iterations", w.mean_it},
+                        {"mean_log_likelihood", w.mean_ll}, {"start", w.timing["svndf_start"]},
                         {"multilobe_memory_bytes", w.low_mat->memory_bytes()}};
     L.stats["storage_bytes"] = {{"h_low", L.h_low.memory_bytes()},
                                 {"lobes", L.ndf.size() * size_t(5 * o.lobes + 1) * sizeof(float)},
@@ -365,7 +385,27 @@ PrefilteredModel build_model(const PipelineOptions &opts) {
                  o.interreflections ? "on" : "off", flow_name(model.quadrature).c_str(),
                  opts.flow_auto && !o.flow_lobes ? " (--flow auto: the base has no closed form)" : "");
     std::vector<LevelWork> levels;
-    for (int F : o.scales) levels.push_back(prepare_level(o, F, in, orig, model.quadrature));
+    // Every level's h_low in order on one thread, beside the SVNDF fits (prepare_level).
+    std::vector<std::promise<LowStage>> lows(o.scales.size());
+    std::vector<std::future<LowStage>> low_futures;
+    for (auto &p : lows) low_futures.push_back(p.get_future());
+    std::thread lsq([&] {
+        for (size_t i = 0; i < o.scales.size(); ++i) {
+            try {
+                lows[i].set_value(least_squares_stage(map, o.scales[i]));
+            } catch (...) {
+                for (size_t j = i; j < lows.size(); ++j) lows[j].set_exception(std::current_exception());
+                return;
+            }
+        }
+    });
+    struct Joiner {
+        std::thread &t;
+        ~Joiner() { t.join(); }
+    } joiner{lsq};
+    for (size_t i = 0; i < o.scales.size(); ++i)
+        levels.push_back(prepare_level(o, o.scales[i], in, orig, model.quadrature,
+                                       levels.empty() ? nullptr : &levels.back().L, low_futures[i]));
     // T / S of every level together (the original's lines shared); --max-seconds: what is left.
     const auto t_ts = Clock::now();
     std::vector<ScalingStats> st;

@@ -37,6 +37,10 @@ struct PipelineOptions {
     int N = 15;                ///< -N: angular resolution of S
     int lobes = 6;             ///< --lobes: vMF lobes per patch NDF
     int samples_per_cell = 2;  ///< --ndf-samples
+    /// --ndf-start children (true, default): a level whose factor is a multiple of the previous
+    /// level's starts each patch's EM from its children's merged lobes (patch_ndf.h,
+    /// fit_svndf_from); kmeans (false): k-means++ starts at every level
+    bool ndf_from_children = true;
     bool interreflections = true;  ///< --interreflections on: also T_ir, S_ir
     int paths = 64, low_paths = 64, low_nodes = 4;  ///< --paths, --low-paths, --low-nodes
     bool jitter_directions = true;  ///< --directions jitter (true, default) or centres (scaling.h, "Directions")
