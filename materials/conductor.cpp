@@ -27,6 +27,7 @@
 #include <algorithm>
 #include <fmt/format.h>
 #include <optional>
+#include <vector>
 #include "bsdf/fresnel.h"
 #include "bsdf/material.h"
 #include "bsdf/microfacet.h"
@@ -57,11 +58,31 @@ public:
         std::fill(out, out + n, Spectrum(0.f));
         if (!m_dist || !(wo.z > 0.f)) return;
         const double lo = m_dist->lambda(wo);
+        if (!std::isfinite(lo)) return;  // G = 0 at every wi
         const Spectrum spec = m_specular->eval(ctx);
+        // rough_value's steps with D(h) and Λ(wi) batched (D_lambda_batch: Λ within 1.2e-7 erfc(a)
+        // of lambda(), so G within a float ulp or two of eval's): the upper wi, their half vectors.
+        thread_local std::vector<Vec3> hv, wv;
+        thread_local std::vector<int> idx;
+        thread_local std::vector<float> Dv;
+        thread_local std::vector<double> lv;
+        hv.clear(), wv.clear(), idx.clear();
         for (int k = 0; k < n; ++k)
-            if (wi[k].z > 0.f)
-                out[k] = rough_value(wo, wi[k], [&](const Vec3 &h) { return m_dist->G(wo, wi[k], h, lo); },
-                                     [&] { return spec; });
+            if (wi[k].z > 0.f) hv.push_back(normalize(wo + wi[k])), wv.push_back(wi[k]), idx.push_back(k);
+        const int m = int(idx.size());
+        Dv.resize(size_t(m)), lv.resize(size_t(m));
+        m_dist->D_lambda_batch(hv.data(), wv.data(), m, Dv.data(), lv.data());
+        const double inv4 = 1.0 / (4.0 * wo.z);
+        for (int q = 0; q < m; ++q) {
+            const Vec3 &h = hv[size_t(q)], &w = wv[size_t(q)];
+            const float D = Dv[size_t(q)];
+            const double li = lv[size_t(q)];
+            if (D == 0.f || !(dot(wo, h) * wo.z > 0.f) || !(dot(w, h) * w.z > 0.f) || !std::isfinite(li)) continue;
+            const float G = float(1.0 / (1.0 + lo + li));
+            const float s = float(double(D) * G * inv4);
+            if (!std::isfinite(s) || s <= 0.f) continue;
+            out[idx[size_t(q)]] = fresnel_conductor(dot(w, h), m_eta, m_k) * spec * s;
+        }
     }
 
     /// eval and pdf sharing the half vector, D and Λ(wo) (the multi-lobe BRDF of prefiltered

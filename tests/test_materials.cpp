@@ -316,8 +316,10 @@ TEST_P(MaterialBattery, EvalPdfMatchesSeparateCalls) {
     }
 }
 
-// eval_batch (one wo, many wi: the prefilter's splat; Conductor shares Λ(wo)) must give exactly
-// eval's values, at directions above and below the surface, for every viewer, grazing ones too.
+// eval_batch (one wo, many wi: the prefilter's splat; Conductor shares Λ(wo)) must give eval's
+// values, at directions above and below the surface, for every viewer, grazing ones too: exactly,
+// except a rough conductor's, whose D and Λ(wi) are batched in double lanes (Beckmann's erfc to
+// 1.2e-7 relative, MicrofacetDistribution::D_lambda_batch): within 4 float ulps there.
 TEST_P(MaterialBattery, EvalBatchIsEval) {
     const Case &c = GetParam();
     auto mat = make_material(c.json);
@@ -335,7 +337,9 @@ TEST_P(MaterialBattery, EvalBatchIsEval) {
         for (size_t k = 0; k < wi.size(); ++k) {
             const Spectrum e = mat->eval(kCtx, wo, wi[k]);
             for (int ch = 0; ch < 3; ++ch)
-                ASSERT_TRUE(out[k][ch] == e[ch] || (std::isnan(out[k][ch]) && std::isnan(e[ch])))
+                ASSERT_TRUE(out[k][ch] == e[ch] || (std::isnan(out[k][ch]) && std::isnan(e[ch])) ||
+                            (c.json.find("conductor") != std::string::npos &&
+                             std::abs(out[k][ch] - e[ch]) <= 4.8e-7f * std::max(std::abs(out[k][ch]), std::abs(e[ch]))))
                     << c.name << " wo " << wo.x << "," << wo.y << "," << wo.z << " wi " << k << ": " << out[k][ch]
                     << " vs " << e[ch];
         }

@@ -306,3 +306,42 @@ TEST(MaterialAnalytic, PlasticInternalReflectance) {
 }
 
 // ------------------------------------------------------------------ parameters
+
+// D_lambda_batch (a rough conductor's eval_batch) against D() and lambda() one direction at a
+// time: D to a float ulp, Λ within 1.2e-7 erfc(a) + 1e-15 relative (Beckmann's erfc is Numerical
+// Recipes' erfcc; GGX's Λ has no approximation), for both distributions, isotropic and
+// anisotropic, α from 1e-4 to 1e3, and the degenerate directions (normal, grazing, below, z = 0).
+TEST(MaterialAnalytic, MicrofacetBatchMatchesScalar) {
+    PCG32 rng(77);
+    std::vector<Vec3> dirs;
+    for (int i = 0; i < 301; ++i) dirs.push_back(square_to_uniform_sphere(Vec2(rng.next_float(), rng.next_float())));
+    for (Vec3 d : {Vec3(0.f, 0.f, 1.f), Vec3(1.f, 0.f, 0.f), Vec3(0.f, 0.6f, -0.8f), normalize(Vec3(1.f, 1.f, 1e-6f)),
+                   normalize(Vec3(0.f, 1.f, 1e-3f))})
+        dirs.push_back(d);
+    std::vector<float> D(dirs.size());
+    std::vector<double> L(dirs.size());
+    for (MicrofacetType t : {MicrofacetType::Beckmann, MicrofacetType::GGX})
+        for (auto [au, av] : {std::pair{1e-4f, 1e-4f}, {0.05f, 0.05f}, {0.3f, 0.3f}, {0.2f, 0.7f}, {1.f, 1.f}, {1e3f, 1e3f}}) {
+            const MicrofacetDistribution dist(t, au, av);
+            for (int n : {int(dirs.size()), int(dirs.size()) - 1}) {  // even and odd counts
+                std::vector<Vec3> w(dirs.begin(), dirs.begin() + n), m(w.rbegin(), w.rend());
+                for (Vec3 &x : m) x = Vec3(x.x, x.y, std::abs(x.z));  // half vectors: some at z = 0
+                dist.D_lambda_batch(m.data(), w.data(), n, D.data(), L.data());
+                for (int k = 0; k < n; ++k) {
+                    const float d = dist.D(m[size_t(k)]);
+                    const double l = dist.lambda(w[size_t(k)]);
+                    EXPECT_NEAR(D[size_t(k)], d, 1.2e-7f * d) << au << " " << av << " " << k;
+                    if (std::isinf(l)) {
+                        EXPECT_TRUE(std::isinf(L[size_t(k)])) << k;
+                    } else {
+                        const Vec3 &x = w[size_t(k)];
+                        const double a2t2 = (double(x.x) * x.x * au * au + double(x.y) * x.y * av * av) / (double(x.z) * x.z);
+                        const double ec = a2t2 > 0.0 ? std::erfc(1.0 / std::sqrt(a2t2)) : 0.0;
+                        const double tol = t == MicrofacetType::GGX ? 1e-15 * l : 1.2e-7 * ec + 1e-13 * (l + ec) + 1e-300;  // e^x flushes below e^-708
+                        EXPECT_NEAR(L[size_t(k)], l, tol) << au << " " << av << " " << k;
+                    }
+                    EXPECT_TRUE(std::isfinite(D[size_t(k)]) && D[size_t(k)] >= 0.f);
+                }
+            }
+        }
+}

@@ -2,6 +2,7 @@
 #include <cmath>
 #include <fmt/format.h>
 #include "bsdf/material.h"
+#include "core/f64_lanes.h"
 #include "core/properties.h"
 #include "sampling/warp.h"
 
@@ -111,6 +112,56 @@ double MicrofacetDistribution::lambda(const Vec3 &wf) const {
     // Beckmann: (erf(a) - 1)/2 + exp(-a^2)/(2 a sqrt(pi)); erfc keeps the tail accurate.
     double l = 0.5 * (std::exp(-a * a) / (a * kSqrtPi) - std::erfc(a));
     return std::max(l, 0.0);
+}
+
+void MicrofacetDistribution::D_lambda_batch(const Vec3 *mf, const Vec3 *wf, int n, float *Dout, double *lout) const {
+    using lanes::F64x2;
+    using lanes::splat;
+    const double au = m_alpha_u, av = m_alpha_v, iau2 = 1.0 / (au * au), iav2 = 1.0 / (av * av);
+    const double au2 = au * au, av2 = av * av, norm = 1.0 / (kPi * au * av);
+    const bool ggx = m_type == MicrofacetType::GGX;
+    for (int k = 0; k < n; k += 2) {
+        const int k1 = k + 1 < n ? k + 1 : k;
+        const F64x2 mx{mf[k].x, mf[k1].x}, my{mf[k].y, mf[k1].y}, mz{mf[k].z, mf[k1].z};
+        const F64x2 wx{wf[k].x, wf[k1].x}, wy{wf[k].y, wf[k1].y}, wz{wf[k].z, wf[k1].z};
+        // D, as D(): x2 = m.x² / au² (here times 1 / au², the same to an ulp), z2 = m.z².
+        const F64x2 x2 = mx * mx * splat(iau2), y2 = my * my * splat(iav2), z2 = mz * mz;
+        F64x2 r;
+        if (ggx) {
+            const F64x2 den = x2 + y2 + z2;
+            r = splat(norm) / (den * den);
+        } else {
+            F64x2 e = (x2 + y2) / z2;
+            e = e == e ? e : splat(0.0);  // m.z = 0 (0 / 0): masked below
+            r = lanes::exp_nonpositive(-e) * splat(norm) / (z2 * z2);
+        }
+        // Λ, as lambda(): a²t² = (w.x² au² + w.y² av²) / w.z².
+        const F64x2 num = wx * wx * splat(au2) + wy * wy * splat(av2), wz2 = wz * wz;
+        const F64x2 a2t2 = num / wz2;
+        F64x2 l;
+        if (ggx) {
+            const F64x2 q{std::sqrt(1.0 + a2t2[0]), std::sqrt(1.0 + a2t2[1])};
+            l = a2t2 / (splat(2.0) * (splat(1.0) + q));
+        } else {
+            // a = 1 / sqrt(a²t²) > 0; erfc(a) = t e^{−a² + P(t)}, t = 1 / (1 + a / 2) (erfcc).
+            const F64x2 a{1.0 / std::sqrt(a2t2[0]), 1.0 / std::sqrt(a2t2[1])};
+            const F64x2 ea = lanes::exp_nonpositive(-(a * a));
+            const F64x2 t = splat(1.0) / (splat(1.0) + splat(0.5) * a);
+            F64x2 p = splat(0.17087277);
+            for (double c : {-0.82215223, 1.48851587, -1.13520398, 0.27886807, -0.18628806, 0.09678418, 0.37409196,
+                             1.00002368, -1.26551223})
+                p = p * t + splat(c);
+            // P is in [−1.27, 0.01]: exp_nonpositive's reduction also holds for small positive x.
+            const F64x2 erfc = t * lanes::exp_nonpositive(p - a * a);
+            l = splat(0.5) * (ea / (a * splat(kSqrtPi)) - erfc);
+            l = l > splat(0.0) ? l : splat(0.0);
+        }
+        for (int q = 0; q < 2 && k + q < n; ++q) {
+            const double d = mz[q] > 0.0 ? r[q] : 0.0;
+            Dout[k + q] = std::isfinite(d) ? float(d) : 0.f;
+            lout[k + q] = num[q] == 0.0 ? 0.0 : wz2[q] == 0.0 ? INFINITY : l[q];
+        }
+    }
 }
 
 float MicrofacetDistribution::G1(const Vec3 &w, const Vec3 &m) const {

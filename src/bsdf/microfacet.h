@@ -63,6 +63,13 @@ public:
     /// G with Λ(wo) given (lambda(wo)): the same value, for callers that hold one wo for many wi.
     float G(const Vec3 &wo, const Vec3 &wi, const Vec3 &m, double lambda_wo) const;
 
+    /// D(m[k]) and Λ(w[k]) for k < n, two lanes at a time (the prefilter's next-event splat
+    /// evaluates one wo against 225 ωi a vertex). e^x is core/f64_lanes.h's (within a few ulp of
+    /// libm); Beckmann's erfc is a rational approximation with a relative error below 1.2e-7
+    /// (Numerical Recipes' erfcc), so Λ is within 1.2e-7 · erfc(a) of lambda() and G within a
+    /// float ulp or two; D is D()'s to a float ulp. Same degenerate cases as D() and lambda().
+    void D_lambda_batch(const Vec3 *m, const Vec3 *w, int n, float *D, double *lambda) const;
+
     /// Density of the microfacet normals that sample() produces (solid angle of m);
     /// wo must be in the upper hemisphere.
     float pdf(const Vec3 &wo, const Vec3 &m) const;
