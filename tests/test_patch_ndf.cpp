@@ -446,10 +446,34 @@ TEST(PatchNdf, FitFromChildrenMatchesKmeansInFewerSteps) {
         opt.threads = 2;
         const std::vector<PatchNdf> two = fit_svndf_from(hf, 8, fine, 4, opt);
         for (size_t p = 0; p < serial.size(); ++p) EXPECT_TRUE(same(serial[p], two[p])) << p;
+        // x32 from x4 (r = 8: a quadtree of merges) is as good as k-means++ too.
+        {
+            const std::vector<PatchNdf> km = fit_svndf(hf, 32, opt), from = fit_svndf_from(hf, 32, fine, 4, opt);
+            double lk = 0, lf = 0;
+            for (size_t p = 0; p < km.size(); ++p) lk += km[p].log_likelihood, lf += from[p].log_likelihood;
+            EXPECT_GE(lf, lk - 0.01 * double(km.size()));
+        }
         EXPECT_THROW(fit_svndf_from(hf, 8, fine, 3, opt), MesoError);  // 3 does not divide 8
         EXPECT_THROW(fit_svndf_from(hf, 8, fine, 2, opt), MesoError);  // a factor-4 fit's size
         EXPECT_THROW(fit_svndf_from(hf, 4, fine, 8, opt), MesoError);
     }
+}
+
+// Ratios that are not powers of two: r = 3 merges its 9 children's lobes at once; r = 6 (216
+// lobes) has no start and is exactly fit_svndf's k-means++ fit.
+TEST(PatchNdf, FitFromChildrenOfOtherRatios) {
+    const Heightfield hf(gen("fbm", {{"size", "48"}, {"amplitude", "0.03"}, {"seed", "6"}}), 1.f, 0.f);
+    PatchNdfOptions opt;
+    opt.cell_size = 1.0 / 48;
+    opt.samples_per_cell = 2;
+    const std::vector<PatchNdf> fine = fit_svndf(hf, 4, opt);
+    const std::vector<PatchNdf> km12 = fit_svndf(hf, 12, opt), from12 = fit_svndf_from(hf, 12, fine, 4, opt);
+    double lk = 0, lf = 0;
+    for (size_t p = 0; p < km12.size(); ++p) lk += km12[p].log_likelihood, lf += from12[p].log_likelihood;
+    EXPECT_GE(lf, lk - 0.01 * double(km12.size()));
+    const std::vector<PatchNdf> km24 = fit_svndf(hf, 24, opt), from24 = fit_svndf_from(hf, 24, fine, 4, opt);
+    ASSERT_EQ(from24.size(), km24.size());
+    for (size_t p = 0; p < km24.size(); ++p) EXPECT_TRUE(same(from24[p], km24[p])) << p;
 }
 
 TEST(PatchNdf, TimingFbm1024) {

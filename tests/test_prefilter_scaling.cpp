@@ -253,6 +253,11 @@ TEST(CmdPrefilter, WritesACompleteModel) {
     EXPECT_EQ(j["input"]["generator"]["kind"], "fbm");
     const nlohmann::json &l0 = j["levels"][0];
     for (const char *k : {"least_squares_s", "svndf_fit_s", "scaling_s"}) EXPECT_TRUE(l0["timing"].contains(k)) << k;
+    // --ndf-start children (the default): x16's fit starts from x8's lobes, x8's from k-means++.
+    EXPECT_EQ(j["parameters"]["ndf_start"], "children");
+    EXPECT_EQ(l0["svndf"]["start"], "kmeans++");
+    EXPECT_EQ(j["levels"][1]["svndf"]["start"], "x8 children");
+    EXPECT_TRUE(std::isfinite(j["levels"][1]["svndf"]["mean_log_likelihood"].get<double>()));
     EXPECT_GT(l0["S_ir_rel_std_error"]["median"].get<double>(), 0.0);
     EXPECT_TRUE(l0.contains("rank1_ir"));
     EXPECT_TRUE(l0.contains("storage_bytes"));
@@ -369,6 +374,7 @@ TEST(CmdPrefilter, BadInputIsNamed) {
     EXPECT_NE(err({"--generator", "fbm", "--shadow-roulette", "-1", "-o", "/tmp/x"}).find("--shadow-roulette"),
               std::string::npos);
     EXPECT_NE(err({"--generator", "fbm"}).find("-o"), std::string::npos);
+    EXPECT_NE(err({"--generator", "fbm", "--ndf-start", "nearest", "-o", "/tmp/x"}).find("--ndf-start"), std::string::npos);
 }
 
 namespace {

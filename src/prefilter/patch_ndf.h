@@ -106,9 +106,12 @@ std::vector<PatchNdf> fit_svndf(const Heightfield &hf, int factor, const PatchNd
 /// fit_svndf with every patch's EM started from a finer fit of the same field (`finer`, its
 /// patches at finer_factor, which must divide factor): coarse patch (I, J)'s start is its
 /// (factor / finer_factor)² children's lobes, each weighted by its child's area ratio, merged to
-/// at most em.lobes by reduce_vmf_lobes (fit_vmf_mixture_from), instead of em.init_restarts
+/// at most em.lobes by reduce_vmf_lobes (up a quadtree of 2 x 2 blocks when the ratio is a power
+/// of two; other ratios with more than 200 child lobes get k-means++) (fit_vmf_mixture_from), instead of em.init_restarts
 /// k-means++ starts on its normals. The same EM and convergence test from another start: a local
-/// maximum near the children's, found in fewer M-steps (see the numbers below). Deterministic.
+/// maximum near the children's, found in fewer M-steps. Measured on the bench logo (2048², n = 2,
+/// K = 6, 2 cores): x8 from x4 23.9 → 11.2 s, mean log-likelihood a patch 0.013 → 0.248; x16 from
+/// x8 20.2 → 4.3 s, −0.036 → 0.166 (PatchNdf.FitFromChildrenMatchesKmeansInFewerSteps). Deterministic.
 std::vector<PatchNdf> fit_svndf_from(const Heightfield &hf, int factor, const std::vector<PatchNdf> &finer,
                                      int finer_factor, const PatchNdfOptions &opt = {});
 
