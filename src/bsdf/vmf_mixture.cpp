@@ -513,6 +513,15 @@ void check_options(const VmfEmOptions &opt) {
 }
 
 
+/// A fitted lobe as the output type (float direction).
+VmfLobe to_vmf_lobe(const Lobe &l, double weight) {
+    VmfLobe v;
+    v.mu = Vec3(float(l.mu.x), float(l.mu.y), float(l.mu.z));
+    v.kappa = l.kappa;
+    v.weight = weight;
+    return v;
+}
+
 /// EM from `lobes` (dropping the light ones first), then the output: lobes sorted by weight,
 /// weights renormalised, in float directions.
 VmfMixture em_from(const Data &d, std::vector<Lobe> lobes, const VmfEmOptions &opt) {
@@ -531,13 +540,7 @@ VmfMixture em_from(const Data &d, std::vector<Lobe> lobes, const VmfEmOptions &o
     });
     double total = 0.0;
     for (const Lobe &l : lobes) total += l.weight;
-    for (const Lobe &l : lobes) {
-        VmfLobe v;
-        v.mu = Vec3(float(l.mu.x), float(l.mu.y), float(l.mu.z));
-        v.kappa = l.kappa;
-        v.weight = l.weight / total;
-        out.lobes.push_back(v);
-    }
+    for (const Lobe &l : lobes) out.lobes.push_back(to_vmf_lobe(l, l.weight / total));
     return out;
 }
 
@@ -567,9 +570,8 @@ double group_value(double N, const Dir &R) {
     if (!(N > 0.0)) return 0.0;
     const double r = std::min(1.0, std::sqrt(R.x * R.x + R.y * R.y + R.z * R.z) / N);
     const double k = std::min(vmf::kappa_from_r(r), vmf::kMaxKappa);
-    if (!(k > 1e-8)) return N * -std::log(4.0 * 3.14159265358979323846);  // uniform
-    // log C(κ) + κ r = log κ − log 2π − κ (1 − r) − log(1 − e^{−2κ})
-    return N * (std::log(k) - std::log(2.0 * 3.14159265358979323846) - k * (1.0 - r) - std::log1p(-std::exp(-2.0 * k)));
+    // log C(κ) + κ r = [log_norm(κ) + κ] − κ (1 − r), as e_step forms it (no −κ + κ r cancellation).
+    return N * ((vmf::log_norm(k) + k) - k * (1.0 - r));
 }
 }  // namespace
 
@@ -601,9 +603,11 @@ std::vector<VmfLobe> reduce_vmf_lobes(const std::vector<VmfLobe> &in, int K, con
         for (size_t b = a + 1; b < n; ++b) set_cost(a, b);
     for (size_t groups = n; groups > size_t(K); --groups) {
         size_t ba = n, bb = n;
-        for (size_t a = 0; a < n; ++a)
-            for (size_t b = a + 1; b < n && alive[a]; ++b)
+        for (size_t a = 0; a < n; ++a) {
+            if (!alive[a]) continue;
+            for (size_t b = a + 1; b < n; ++b)
                 if (alive[b] && (ba == n || cost[a * n + b] < cost[ba * n + bb])) ba = a, bb = b;
+        }
         R[ba] = merged_R(ba, bb);
         N[ba] += N[bb];
         V[ba] = group_value(N[ba], R[ba]);
@@ -618,14 +622,8 @@ std::vector<VmfLobe> reduce_vmf_lobes(const std::vector<VmfLobe> &in, int K, con
         if (alive[i]) g.push_back(l[i]), gN.push_back(N[i]), gR.push_back(R[i]);
     lobes_from_sums(g, gN, gR, opt);  // μ = R / |R| (μ kept where R = 0), κ by opt's rule
     std::vector<VmfLobe> out;
-    for (const Lobe &x : g) {
-        if (!(x.weight > 0.0)) continue;
-        VmfLobe v;
-        v.mu = Vec3(float(x.mu.x), float(x.mu.y), float(x.mu.z));
-        v.kappa = x.kappa;
-        v.weight = x.weight;
-        out.push_back(v);
-    }
+    for (const Lobe &x : g)
+        if (x.weight > 0.0) out.push_back(to_vmf_lobe(x, x.weight));
     return out;
 }
 
