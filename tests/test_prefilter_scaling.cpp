@@ -484,8 +484,8 @@ namespace {
 /// `roulette`: ScalingOptions::shadow_roulette (scaling.h, "Shadow-ray roulette"); `allocate`:
 /// ScalingOptions::allocate_lines (rounds 2 and 3 with the allocation's unequal counts).
 void check_against_brute_force(int cv_lines, bool lobes = false, bool jitter = false, double roulette = 1.0,
-                               bool allocate = false) {
-    std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", "0.05"}, {"seed", "5"}};
+                               bool allocate = false, const char *amplitude = "0.05") {
+    std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", amplitude}, {"seed", "5"}};
     HeightMap map = generate_height_map("fbm", p).height;
     const char *base_json = R"({"type": "conductor", "material": "Al", "alpha": 0.3})";
     auto base = make_material(base_json);
@@ -550,6 +550,11 @@ TEST(PrefilterScalingEstimator, JitteredDirectionsUnbiasedAgainstBruteForce) { c
 TEST(PrefilterScalingEstimator, NoShadowRouletteUnbiasedAgainstBruteForce) { check_against_brute_force(0, false, false, 0.0); }
 TEST(PrefilterScalingEstimator, StrongShadowRouletteUnbiasedAgainstBruteForce) {
     check_against_brute_force(0, false, true, 16.0);  // most terms by roulette: its weights must be right
+}
+// A steep map whose h_low still shadows (its slope test clears few terms): the roulette on the
+// denominator's shadow rays too, with the closed-form f'_low.
+TEST(PrefilterScalingEstimator, StrongShadowRouletteOnSteepLowUnbiased) {
+    check_against_brute_force(0, true, true, 16.0, false, "0.4");
 }
 TEST(PrefilterScalingEstimator, AllocatedLinesUnbiasedAgainstBruteForce) {
     check_against_brute_force(0, false, true, 1.0, true);  // rounds 2 and 3 with other counts per field

@@ -152,7 +152,7 @@ SubcommandRegistrar reg_prefilter{
              ->capture_default_str()
              ->check(CLI::Range(0, 1 << 20));
          app.add_option("--shadow-roulette", o->shadow_roulette,
-                        "shadow rays on the original: a next-event term below this times its bin's mean so far is "
+                        "shadow rays on the original and h_low: a next-event term below this times its bin's mean so far is "
                         "traced with probability term / (that), weighted by the inverse (unbiased; 0: trace all)")
              ->capture_default_str()
              ->check(CLI::Range(0.0, 1e6));

@@ -281,7 +281,8 @@ struct ScalingEstimator::Task {
                 for (int q = 0; q < 3; ++q) pc[q] += f[q];
             }
             Spectrum c = throughput * f;
-            if (ref_scale > 0.0) {
+            const bool needs_ray = !unoccluded_by_slope(wi[size_t(b)], est.m_slope_orig);
+            if (needs_ray && ref_scale > 0.0) {  // a term without a shadow ray gains nothing from it
                 const double *m = &ref_sum[base_idx + size_t(b) * 3];
                 const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = c.max() * q_ratio;  // the sums' scale
                 if (cm < ref) {
@@ -291,9 +292,7 @@ struct ScalingEstimator::Task {
                     for (int q = 0; q < 3; ++q) c[q] = float(double(c[q]) * (ref / cm));
                 }
             }
-            if (!unoccluded_by_slope(wi[size_t(b)], est.m_slope_orig) &&
-                est.m_orig.occluded(org, wi[size_t(b)], 0.f, Infinity, v.ox, v.oy))
-                continue;
+            if (needs_ray && est.m_orig.occluded(org, wi[size_t(b)], 0.f, Infinity, v.ox, v.oy)) continue;
             double *pir = &buf.b[size_t(b) * 3];
             for (int q = 0; q < 3; ++q) pir[q] += c[q];
             if (depth == 1) {
@@ -395,16 +394,39 @@ struct ScalingEstimator::Task {
             le.m_low_mat.patch(v.ctx.uv).eval_batch(v.ctx, wo, wi.data(), B, fl.data());
         else
             sample_f_low_nodes(le, le.m_low_mat.patch(v.ctx.uv), v.ctx, wo, J, node_xi(k));
+        // The shadow-ray roulette (scaling.h) on the terms that need a shadow ray: the reference
+        // is ε times the bin's mean denominator term per accepted line so far (this level's).
+        const double eps = cv ? 0.0 : le.m_opt.shadow_roulette;
+        const double before = double(le.m_count_low[task]) + double(acc_low[j]);
+        const double ref_scale = eps > 0.0 && before >= kRouletteLines ? eps / before : 0.0;
+        PCG32 lrr;
+        bool lrr_drawn = false;
         for (int b = 0; b < B; ++b) {
             const Vec3 &w = wi[size_t(b)];
-            const Spectrum &f = fl[size_t(b)];
+            Spectrum f = fl[size_t(b)];
             if (f.is_black() || !(dot(v.n, w) > 0.f)) continue;  // below the h_low facet: self-shadowed
-            if (!unoccluded_by_slope(w, le.m_slope_low) && le.m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy))
-                continue;
+            if (!unoccluded_by_slope(w, le.m_slope_low)) {
+                if (ref_scale > 0.0) {
+                    const double *m = &le.m_d[base_idx + size_t(b) * 3];
+                    const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = f.max() * q_ratio;
+                    if (cm < ref) {
+                        if (!lrr_drawn) lrr = low_roulette_rng(k), lrr_drawn = true;
+                        if (!(lrr.next_double() * ref < cm)) continue;  // traced with probability cm / ref
+                        for (int q = 0; q < 3; ++q) f[q] = float(double(f[q]) * (ref / cm));
+                    }
+                }
+                if (le.m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy)) continue;
+            }
             double *p = &out.a[size_t(b) * 3];
             for (int q = 0; q < 3; ++q) p[q] += f[q];
         }
         return true;
+    }
+    /// Line k's stream for the shadow-ray roulette on G_low: its own, the same for every level of
+    /// a group (a level's tables do not depend on the levels traced with it).
+    PCG32 low_roulette_rng(int k) const {
+        return PCG32(hash_combine(hash_combine(round_seed ^ 0x10dd5ULL, uint64_t(task)), uint64_t(k)),
+                     mix_bits(round_seed ^ 0x5151ULL));
     }
 
     /// Adds one line's terms to this task's slice of `sum`.

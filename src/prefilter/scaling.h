@@ -137,11 +137,15 @@
 // round's earlier lines, of the sum the term goes to; none before 8 lines) is traced with
 // probability c / ref and then counts ref (c / probability): unbiased (the decision depends
 // only on earlier lines), with at most ε · mean · c more variance per term, ε · mean² per line,
-// against a per-line variance that is many mean² for a glossy base. Only on the original:
-// f'_low on h_low is smooth and its shadow rays are few, and the same rule there measured
-// slower (1.013x). Measured (docs/bench.md, session 38): the bench plane's round
+// against a per-line variance that is many mean² for a glossy base. Only terms that need a
+// shadow ray take part (those that the slope test clears are added as they are: no ray to save).
+// Measured (docs/bench.md, session 38): the bench plane's round
 // 24.3 -> 20.7 s at ε = 1 with S's median error 0.0665 -> 0.0666; ε = 4 gains 0.5 s more and
-// costs 0.0675, ε = 16 0.0778.
+// costs 0.0675, ε = 16 0.0778. On h_low the same rule (session 41; its reference the bin's mean
+// denominator term per accepted h_low line of the level, its decisions from the line's own
+// stream, the same for every level): a steep h_low (the logo's x4, 512²) traces a shadow ray
+// for nearly every one of the N² terms of f'_low, most of them tiny. The logo's chain, two
+// rounds: 62.7 -> 52.1 s (S 0.0582 -> 0.0594); the plane's one round 32.2 -> 28.1 s (S equal).
 //
 // Line allocation (allocate_lines; `meso prefilter --allocate-lines`). A level's S error per round
 // is about A / Ko + D / Kl: A the original's variance per line (its relative error², the median
