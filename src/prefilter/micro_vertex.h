@@ -92,22 +92,10 @@ inline ShootingRegion shooting_region(const Heightfield &hf, const PatchRegion &
     return Q;
 }
 
-/// L = the largest |∇h| of the bilinear surface (cell space; attained at cell corners). A ray
-/// leaving a point ON the surface with rise/run > L can never meet the surface again (the
-/// surface rises at most at rate L along any horizontal line), so its shadow test is skipped
-/// exactly: see unoccluded_by_slope.
-inline double max_slope(const Heightfield &hf) {
-    double L2 = 0;
-    for (int j = 0; j < hf.height(); ++j)
-        for (int i = 0; i < hf.width(); ++i) {
-            const double h00 = hf.vertex(i, j), h10 = hf.vertex(i + 1, j), h01 = hf.vertex(i, j + 1),
-                         h11 = hf.vertex(i + 1, j + 1);
-            const double ax = h10 - h00, bx = h11 - h01, ay = h01 - h00, by = h11 - h10;
-            L2 = std::max({L2, ax * ax + ay * ay, ax * ax + by * by, bx * bx + ay * ay, bx * bx + by * by});
-        }
-    return std::sqrt(L2);
-}
-
+/// A ray leaving a point ON the surface with rise/run above a slope L that bounds the surface's
+/// rise along every horizontal line from there (SlopeBound: the largest |∇h| around the point,
+/// and the heights farther away) can never meet the surface again, so its shadow test is skipped
+/// exactly.
 /// Whether direction w (unit) rises faster than slope L, with a relative margin for rounding.
 inline bool unoccluded_by_slope(Vec3 w, double L) {
     const double run = std::sqrt(double(w.x) * w.x + double(w.y) * w.y);

@@ -104,8 +104,7 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
     if (opt.cv_lines < 0) throw MesoError(fmt::format("scaling function: cv_lines = {} must be >= 0", opt.cv_lines));
     m_bins = N * N;
     m_round_lines = RoundLines{opt.orig_paths, opt.low_paths};
-    m_slope_orig = max_slope(orig);
-    m_slope_low = max_slope(low);
+    m_low_bound = std::make_unique<const SlopeBound>(low);
     const size_t n = size_t(M) * M * m_bins * m_bins * 3;
     for (auto *v : {&m_n1, &m_n1sq, &m_d, &m_dsq, &m_n1x}) v->assign(n, 0.0);
     if (opt.interreflections)
@@ -125,9 +124,14 @@ ScalingEstimator::ScalingEstimator(const Heightfield &orig, const Material &base
     m_wsum_low.assign(size_t(M) * M * m_bins, 0.0);
     m_stats.estimator_bytes = ((opt.interreflections ? 8 : 5) + (opt.cv_lines > 0 ? 2 : 0) +
                                (recip ? (opt.interreflections ? 4 : 2) : 0)) * n * sizeof(double) +
-                              3 * size_t(M) * M * m_bins * sizeof(uint32_t);
+                              3 * size_t(M) * M * m_bins * sizeof(uint32_t) + m_low_bound->memory_bytes();
     m_count_orig.assign(size_t(M) * M * m_bins, 0);
     m_count_low.assign(size_t(M) * M * m_bins, 0);
+}
+
+const SlopeBound &ScalingEstimator::orig_bound() const {
+    std::call_once(m_orig_bound_once, [this] { m_orig_bound = std::make_unique<const SlopeBound>(m_orig); });
+    return *m_orig_bound;
 }
 
 /// One (patch P, ωo bin) task of a round (scaling.h, "Work"): its random stream, the ωi
@@ -268,6 +272,9 @@ struct ScalingEstimator::Task {
         est.m_base.eval_batch(v.ctx, lwo, lwi.data(), int(up.size()), fo.data());
         // The roulette's reference: ε times the bin's mean term per line so far (this round's
         // lines before this one and the earlier rounds'), of the sum this vertex adds to.
+        // The slope above which a direction cannot be shadowed from org (slope_bound.h).
+        const SlopeBound::Local lb = est.orig_bound().local(double(v.ox) + double(org.x), double(v.oy) + double(org.y), org.z);
+        const double slope = lb.slope;
         const double eps = cv ? 0.0 : est.m_opt.shadow_roulette;
         const double before = double(est.m_shot[task]) + double(orig_lines) - 1.0;
         const std::vector<double> &ref_sum = depth == 1 ? est.m_n1 : est.m_nir;
@@ -281,7 +288,7 @@ struct ScalingEstimator::Task {
                 for (int q = 0; q < 3; ++q) pc[q] += f[q];
             }
             Spectrum c = throughput * f;
-            const bool needs_ray = !unoccluded_by_slope(wi[size_t(b)], est.m_slope_orig);
+            const bool needs_ray = !unoccluded_by_slope(wi[size_t(b)], slope);
             if (needs_ray && ref_scale > 0.0) {  // a term without a shadow ray gains nothing from it
                 const double *m = &ref_sum[base_idx + size_t(b) * 3];
                 const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = c.max() * q_ratio;  // the sums' scale
@@ -292,7 +299,8 @@ struct ScalingEstimator::Task {
                     for (int q = 0; q < 3; ++q) c[q] = float(double(c[q]) * (ref / cm));
                 }
             }
-            if (needs_ray && est.m_orig.occluded(org, wi[size_t(b)], 0.f, Infinity, v.ox, v.oy)) continue;
+            if (needs_ray && est.m_orig.occluded(org, wi[size_t(b)], 0.f, SlopeBound::reach(lb, wi[size_t(b)]), v.ox, v.oy))
+                continue;
             double *pir = &buf.b[size_t(b) * 3];
             for (int q = 0; q < 3; ++q) pir[q] += c[q];
             if (depth == 1) {
@@ -401,11 +409,13 @@ struct ScalingEstimator::Task {
         const double ref_scale = eps > 0.0 && before >= kRouletteLines ? eps / before : 0.0;
         PCG32 lrr;
         bool lrr_drawn = false;
+        const SlopeBound::Local lb = le.m_low_bound->local(double(v.ox) + double(org.x), double(v.oy) + double(org.y), org.z);
+        const double slope = lb.slope;
         for (int b = 0; b < B; ++b) {
             const Vec3 &w = wi[size_t(b)];
             Spectrum f = fl[size_t(b)];
             if (f.is_black() || !(dot(v.n, w) > 0.f)) continue;  // below the h_low facet: self-shadowed
-            if (!unoccluded_by_slope(w, le.m_slope_low)) {
+            if (!unoccluded_by_slope(w, slope)) {
                 if (ref_scale > 0.0) {
                     const double *m = &le.m_d[base_idx + size_t(b) * 3];
                     const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = f.max() * q_ratio;
@@ -415,7 +425,7 @@ struct ScalingEstimator::Task {
                         for (int q = 0; q < 3; ++q) f[q] = float(double(f[q]) * (ref / cm));
                     }
                 }
-                if (le.m_low.occluded(org, w, 0.f, Infinity, v.ox, v.oy)) continue;
+                if (le.m_low.occluded(org, w, 0.f, SlopeBound::reach(lb, w), v.ox, v.oy)) continue;
             }
             double *p = &out.a[size_t(b) * 3];
             for (int q = 0; q < 3; ++q) p[q] += f[q];

@@ -167,11 +167,13 @@
 #pragma once
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <vector>
 #include "geometry/heightfield.h"
 #include "prefilter/effective_brdf.h"
 #include "prefilter/model.h"
+#include "prefilter/slope_bound.h"
 #include "bsdf/material.h"
 
 namespace meso::prefilter {
@@ -331,7 +333,12 @@ private:
     // The means' divisors (see "Weights"): per (patch, bo), Σ |Q| / |P| over the accepted lines
     // on the original (m_area), on h_low and of the control variate.
     std::vector<double> m_wsum_low, m_wsum_cv;
-    double m_slope_orig = 0, m_slope_low = 0;  // max |∇h| (detail::max_slope)
+    /// Local bounds on the slopes that can shadow a shadow ray's origin (slope_bound.h): h_low's
+    /// built with the estimator, the original's on first use (only a group's lead traces it).
+    std::unique_ptr<const SlopeBound> m_low_bound;
+    mutable std::unique_ptr<const SlopeBound> m_orig_bound;
+    mutable std::once_flag m_orig_bound_once;
+    const SlopeBound &orig_bound() const;
     /// current_S_rel_se and S_rel_se_per_wo_bin of the sums after round `rounds` (se_cache).
     struct SeCache {
         int rounds = -1;
