@@ -253,9 +253,9 @@ TEST(CmdPrefilter, WritesACompleteModel) {
     EXPECT_EQ(j["input"]["generator"]["kind"], "fbm");
     const nlohmann::json &l0 = j["levels"][0];
     for (const char *k : {"least_squares_s", "svndf_fit_s", "scaling_s"}) EXPECT_TRUE(l0["timing"].contains(k)) << k;
-    // --ndf-start children (the default): x16's fit starts from x8's lobes, x8's from k-means++.
+    // --ndf-start children (the default): x16's fit starts from x8's lobes, x8's from its cells.
     EXPECT_EQ(j["parameters"]["ndf_start"], "children");
-    EXPECT_EQ(l0["svndf"]["start"], "kmeans++");
+    EXPECT_EQ(l0["svndf"]["start"], "cells");
     EXPECT_EQ(j["levels"][1]["svndf"]["start"], "x8 children");
     EXPECT_TRUE(std::isfinite(j["levels"][1]["svndf"]["mean_log_likelihood"].get<double>()));
     EXPECT_GT(l0["S_ir_rel_std_error"]["median"].get<double>(), 0.0);

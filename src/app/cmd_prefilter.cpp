@@ -182,7 +182,8 @@ SubcommandRegistrar reg_prefilter{
              ->check(CLI::Range(1, 32));
          app.add_option("--ndf-start", o->ndf_from_children,
                         "where each patch's vMF EM starts: children (a level whose factor is a multiple of the previous "
-                        "level's: its children's lobes, merged; faster) or kmeans (k-means++ starts at every level)")
+                        "level's: its children's lobes, merged; the first level: its cells' normals, one lobe a cell, "
+                        "merged; faster) or kmeans (k-means++ starts at every level)")
              ->transform(CLI::CheckedTransformer(std::map<std::string, bool>{{"kmeans", false}, {"children", true}}))
              ->default_str("children");
          app.add_option("--quadrature", o->quad_polar, "f'_low quadrature: nodes per lobe in the vMF CDF variable")->capture_default_str()

@@ -627,6 +627,19 @@ std::vector<VmfLobe> reduce_vmf_lobes(const std::vector<VmfLobe> &in, int K, con
     return out;
 }
 
+VmfLobe moment_matched_lobe(const Vec3 *dirs, const double *weights, size_t n, const VmfEmOptions &opt) {
+    double N = 0.0, x = 0.0, y = 0.0, z = 0.0;
+    for (size_t i = 0; i < n; ++i) {
+        const double w = weights ? weights[i] : 1.0;
+        if (!(w > 0.0) || !std::isfinite(w)) continue;
+        N += w, x += w * dirs[i].x, y += w * dirs[i].y, z += w * dirs[i].z;
+    }
+    std::vector<Lobe> l(1);
+    lobes_from_sums(l, {N}, {Dir{x, y, z}}, opt);
+    const double len = std::sqrt(x * x + y * y + z * z);
+    return to_vmf_lobe(l[0], len > 0.0 && N > 0.0 && std::isfinite(N) ? N : 0.0);
+}
+
 VmfMixture fit_vmf_mixture_from(const Vec3 *dirs, const double *weights, size_t n, const std::vector<VmfLobe> &start,
                                 const VmfEmOptions &opt) {
     check_options(opt);

@@ -122,6 +122,11 @@ VmfMixture fit_vmf_mixture_from(const Vec3 *dirs, const double *weights, size_t 
 /// the result's weights sum to 1, or it is empty.
 std::vector<VmfLobe> reduce_vmf_lobes(const std::vector<VmfLobe> &lobes, int K, const VmfEmOptions &opt = {});
 
+/// One lobe moment-matched to n weighted directions (weights nullptr: all 1): weight Σ w, μ the
+/// mean direction, κ by opt's rule from its length (what one M-step gives them). A zero resultant
+/// or mass gives weight 0 (an unusable start lobe).
+VmfLobe moment_matched_lobe(const Vec3 *dirs, const double *weights, size_t n, const VmfEmOptions &opt = {});
+
 /// The mixture density Σ a_j γ(w; μ_j, κ_j) (per steradian; 0 for an empty mixture).
 double mixture_pdf(const VmfMixture &mixture, Vec3 w);
 

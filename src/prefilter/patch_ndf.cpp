@@ -78,11 +78,12 @@ void patch_normals_impl(const Heightfield &hf, int factor, int I, int J, const P
         }
 }
 
-/// Patch (I, J)'s fit; from `start` when it is given (fit_vmf_mixture_from), else k-means++.
+/// Patch (I, J)'s fit; from `start` when it is given (fit_vmf_mixture_from), else k-means++;
+/// have_normals: dirs and weights already hold the patch's normals.
 PatchNdf fit_impl(const Heightfield &hf, int factor, int I, int J, const PatchNdfOptions &opt,
                   const std::vector<double> &gx, const std::vector<double> &gw, std::vector<Vec3> &dirs,
-                  std::vector<double> &weights, const std::vector<VmfLobe> *start = nullptr) {
-    patch_normals_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
+                  std::vector<double> &weights, const std::vector<VmfLobe> *start = nullptr, bool have_normals = false) {
+    if (!have_normals) patch_normals_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
     PatchNdf out;
     double area = 0.0;
     for (double w : weights) area += w;
@@ -121,22 +122,14 @@ PatchNdf fit_patch_ndf(const Heightfield &hf, int factor, int I, int J, const Pa
 }
 
 namespace {
-/// The start of a coarse patch from its r x r children in `finer` (fnx patches a row; the first
-/// child at (i0, j0)): the children's lobes as masses (a child's weights sum to 1 over its own
-/// normals, whose total weight is its area ratio), merged to em.lobes by reduce_vmf_lobes. For r
-/// a power of two the merge goes up a quadtree (2 x 2 blocks of 4K lobes, then their parents),
-/// so its cost stays O(r² K³) instead of O((r² K)³) (x8 -> x64: 384 lobes at once); other r merge
-/// at once up to 200 lobes, else there is no start (k-means++: an empty vector).
-std::vector<VmfLobe> children_start(const std::vector<PatchNdf> &finer, int fnx, int i0, int j0, int r,
-                                    const VmfEmOptions &em) {
-    auto gather = [&](int a0, int b0, int size, std::vector<VmfLobe> &out) {
-        for (int b = b0; b < b0 + size; ++b)
-            for (int a = a0; a < a0 + size; ++a) {
-                const PatchNdf &c = finer[size_t(b) * size_t(fnx) + size_t(a)];
-                for (VmfLobe l : c.lobes) l.weight *= c.area_ratio, out.push_back(l);
-            }
-    };
-    // Merged lobes of the size x size block at (a0, b0), as masses.
+/// Lobes of an r x r block of children merged to em.lobes by reduce_vmf_lobes, as masses;
+/// gather(a0, b0, size, out) appends the lobes of the size x size children at (a0, b0), weighted
+/// by their masses, each child holding at most `per_child` lobes. For r a power of two the merge
+/// goes up a quadtree (2 x 2 blocks of 4K lobes, then their parents), so its cost stays
+/// O(r² K³) instead of O((r² K)³) (x8 -> x64: 384 lobes at once); other r merge at once up to 200
+/// lobes, else there is no start (k-means++: an empty vector).
+template <class Gather>
+std::vector<VmfLobe> merged_start(const Gather &gather, int i0, int j0, int r, int per_child, const VmfEmOptions &em) {
     std::function<std::vector<VmfLobe>(int, int, int)> block = [&](int a0, int b0, int size) {
         std::vector<VmfLobe> in;
         if (size <= 2 || (size & (size - 1)) != 0) {
@@ -154,8 +147,39 @@ std::vector<VmfLobe> children_start(const std::vector<PatchNdf> &finer, int fnx,
         for (VmfLobe &l : out) l.weight *= mass;
         return out;
     };
-    if ((r & (r - 1)) != 0 && size_t(r) * size_t(r) * size_t(em.lobes) > 200) return {};
+    if ((r & (r - 1)) != 0 && size_t(r) * size_t(r) * size_t(per_child) > 200) return {};
     return block(i0, j0, r);
+}
+
+/// The start of a coarse patch from its r x r children in `finer` (fnx patches a row; the first
+/// child at (i0, j0)): the children's lobes as masses (a child's weights sum to 1 over its own
+/// normals, whose total weight is its area ratio), merged by merged_start.
+std::vector<VmfLobe> children_start(const std::vector<PatchNdf> &finer, int fnx, int i0, int j0, int r,
+                                    const VmfEmOptions &em) {
+    auto gather = [&](int a0, int b0, int size, std::vector<VmfLobe> &out) {
+        for (int b = b0; b < b0 + size; ++b)
+            for (int a = a0; a < a0 + size; ++a) {
+                const PatchNdf &c = finer[size_t(b) * size_t(fnx) + size_t(a)];
+                for (VmfLobe l : c.lobes) l.weight *= c.area_ratio, out.push_back(l);
+            }
+    };
+    return merged_start(gather, i0, j0, r, em.lobes, em);
+}
+
+/// The start of a patch of the finest fitted level (PatchNdfOptions::start_from_cells): each of
+/// its F x F cells' micro-normals (n² consecutive entries of dirs, patch_normals' order) as one
+/// moment-matched lobe of mass Σ W_q, merged by merged_start.
+std::vector<VmfLobe> cells_start(const std::vector<Vec3> &dirs, const std::vector<double> &weights, int factor,
+                                 const VmfEmOptions &em, std::vector<VmfLobe> &cells) {
+    const size_t per = dirs.size() / (size_t(factor) * size_t(factor));
+    cells.resize(size_t(factor) * size_t(factor));
+    for (size_t c = 0; c < cells.size(); ++c)
+        cells[c] = moment_matched_lobe(&dirs[c * per], &weights[c * per], per, em);
+    auto gather = [&](int a0, int b0, int size, std::vector<VmfLobe> &out) {
+        for (int b = b0; b < b0 + size; ++b)
+            for (int a = a0; a < a0 + size; ++a) out.push_back(cells[size_t(b) * size_t(factor) + size_t(a)]);
+    };
+    return merged_start(gather, 0, 0, factor, 1, em);
 }
 
 /// fit_svndf, from the children's lobes in `finer` (factor finer_factor) when it is given.
@@ -185,9 +209,18 @@ std::vector<PatchNdf> fit_svndf_impl(const Heightfield &hf, int factor, const Pa
     auto run_range = [&](int begin, int end) {
         std::vector<Vec3> dirs;
         std::vector<double> weights;
-        std::vector<VmfLobe> start;
+        std::vector<VmfLobe> start, cells;
         for (int p = begin; p < end; ++p) {
             const int I = p % nx, J = p / nx;
+            // Cells: only with at least 2K of them (one lobe a cell cannot split a cell's normals,
+            // so fewer cells leave EM too few lobes to grow into).
+            if (!finer && opt.start_from_cells && factor * factor >= 2 * opt.em.lobes) {
+                patch_normals_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
+                start = cells_start(dirs, weights, factor, opt.em, cells);
+                out[size_t(p)] =
+                    fit_impl(hf, factor, I, J, opt, gx, gw, dirs, weights, start.empty() ? nullptr : &start, true);
+                continue;
+            }
             if (!finer) {
                 out[size_t(p)] = fit_impl(hf, factor, I, J, opt, gx, gw, dirs, weights);
                 continue;

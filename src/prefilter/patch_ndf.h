@@ -78,6 +78,11 @@ struct PatchNdfOptions {
     double cell_size = 1.0;     ///< world size of one fine cell (finite, > 0)
     VmfEmOptions em;            ///< the EM fit; em.lobes (default 6) is K
     int threads = 0;            ///< fit_svndf: 0 = TBB's default, 1 = serial on the calling thread
+    /// fit_svndf: each patch's EM starts from its cells' normals, one moment-matched lobe a cell,
+    /// merged to em.lobes (as fit_svndf_from merges a finer level's lobes) instead of k-means++;
+    /// only where a patch has at least 2 em.lobes cells (k-means++ below: a cell's lobe does not
+    /// split, and EM cannot add lobes).
+    bool start_from_cells = false;
 };
 
 struct PatchNdf {
