@@ -5,6 +5,7 @@
 // input. PatchNdf.TimingFbm1024 times fit_svndf on a 1024² fbm map (skipped unless
 // MESO_TIMING is set).
 #include <gtest/gtest.h>
+#include <array>
 #include <cstdlib>
 #include <chrono>
 #include <cmath>
@@ -398,6 +399,34 @@ TEST(PatchNdf, InvalidInputThrows) {
     }
 }
 
+namespace {
+/// A 64 x 64 map of four frusta: flat floor, ramps, flat tops.
+HeightMap four_frusta() {
+    HeightMap m(64, 64, 0.f);
+    for (int j = 0; j < 64; ++j)
+        for (int i = 0; i < 64; ++i) {
+            const int u = i % 32, v = j % 32;
+            const double d = std::max(std::abs(u - 16), std::abs(v - 16));
+            m.h[size_t(j) * 64 + i] = float(0.02 * std::clamp(12.0 - d, 0.0, 6.0));
+        }
+    return m;
+}
+
+/// Sums over patches of the log-likelihoods and M-steps of two fits of the same map (k-means++,
+/// another start), with eq. 3's check and the area ratios of the other fit checked per patch.
+std::array<double, 4> compare_fits(const std::vector<PatchNdf> &km, const std::vector<PatchNdf> &other) {
+    std::array<double, 4> s{0, 0, 0, 0};
+    for (size_t p = 0; p < km.size(); ++p) {
+        s[0] += km[p].log_likelihood, s[1] += other[p].log_likelihood;
+        s[2] += km[p].iterations, s[3] += other[p].iterations;
+        EXPECT_GT(other[p].projected_area_check, 1.0 - 1e-7) << p;
+        EXPECT_LT(other[p].projected_area_check, 1.0 + 1e-3) << p;
+        EXPECT_NEAR(other[p].area_ratio, km[p].area_ratio, 1e-12 * km[p].area_ratio) << p;
+    }
+    return s;
+}
+}  // namespace
+
 // fit_svndf_from (the pipeline's default for every level after the first): each coarse patch
 // starts from its children's lobes, merged. On an fbm map and on plateaus with ramps (flat patches
 // are deltas: a merge by direction alone blurred them into the ramps' lobes and lost 0.39 of
@@ -405,13 +434,7 @@ TEST(PatchNdf, InvalidInputThrows) {
 // starts' (less 0.01), in fewer M-steps on fbm; with the exact κ eq. 3's check holds as for any M-step;
 // deterministic and thread-independent; a finer fit of another factor or size throws.
 TEST(PatchNdf, FitFromChildrenMatchesKmeansInFewerSteps) {
-    HeightMap frustum(64, 64, 0.f);
-    for (int j = 0; j < 64; ++j)
-        for (int i = 0; i < 64; ++i) {
-            const int u = i % 32, v = j % 32;  // four frusta: flat floor, ramps, flat tops
-            const double d = std::max(std::abs(u - 16), std::abs(v - 16));
-            frustum.h[size_t(j) * 64 + i] = float(0.02 * std::clamp(12.0 - d, 0.0, 6.0));
-        }
+    const HeightMap frustum = four_frusta();
     const Heightfield maps[2] = {Heightfield(gen("fbm", {{"size", "64"}, {"amplitude", "0.03"}, {"seed", "4"}}), 1.f, 0.f),
                                  Heightfield(frustum, 1.f, 0.f)};
     for (const Heightfield &hf : maps) {
@@ -425,14 +448,7 @@ TEST(PatchNdf, FitFromChildrenMatchesKmeansInFewerSteps) {
         for (int F : {8, 16}) {
             const std::vector<PatchNdf> km = fit_svndf(hf, F, opt), from = fit_svndf_from(hf, F, fine, 4, opt);
             ASSERT_EQ(from.size(), km.size());
-            double lk = 0, lf = 0, ik = 0, itf = 0;
-            for (size_t p = 0; p < km.size(); ++p) {
-                lk += km[p].log_likelihood, lf += from[p].log_likelihood;
-                ik += km[p].iterations, itf += from[p].iterations;
-                EXPECT_GT(from[p].projected_area_check, 1.0 - 1e-7) << p;
-                EXPECT_LT(from[p].projected_area_check, 1.0 + 1e-3) << p;
-                EXPECT_NEAR(from[p].area_ratio, km[p].area_ratio, 1e-12 * km[p].area_ratio) << p;
-            }
+            const auto [lk, lf, ik, itf] = compare_fits(km, from);
             const double n = double(km.size());
             std::printf("x%d from x4 children: mean log-likelihood %.4f (k-means++ %.4f), M-steps %.1f (%.1f)\n", F,
                         lf / n, lk / n, itf / n, ik / n);
@@ -465,13 +481,7 @@ TEST(PatchNdf, FitFromChildrenMatchesKmeansInFewerSteps) {
 // holds; the fit is thread-independent; patches of fewer than 2K cells, and a non-power-of-two
 // factor above 14, fall back to k-means++ exactly.
 TEST(PatchNdf, FitFromCellsMatchesKmeansInFewerSteps) {
-    HeightMap frustum(64, 64, 0.f);
-    for (int j = 0; j < 64; ++j)
-        for (int i = 0; i < 64; ++i) {
-            const int u = i % 32, v = j % 32;
-            const double d = std::max(std::abs(u - 16), std::abs(v - 16));
-            frustum.h[size_t(j) * 64 + i] = float(0.02 * std::clamp(12.0 - d, 0.0, 6.0));
-        }
+    const HeightMap frustum = four_frusta();
     const Heightfield maps[2] = {Heightfield(gen("fbm", {{"size", "64"}, {"amplitude", "0.03"}, {"seed", "4"}}), 1.f, 0.f),
                                  Heightfield(frustum, 1.f, 0.f)};
     for (const Heightfield &hf : maps) {
@@ -487,13 +497,7 @@ TEST(PatchNdf, FitFromCellsMatchesKmeansInFewerSteps) {
             co.start_from_cells = true;
             const std::vector<PatchNdf> cells = fit_svndf(hf, F, co);
             ASSERT_EQ(cells.size(), km.size());
-            double lk = 0, lc = 0, ik = 0, ic = 0;
-            for (size_t p = 0; p < km.size(); ++p) {
-                lk += km[p].log_likelihood, lc += cells[p].log_likelihood;
-                ik += km[p].iterations, ic += cells[p].iterations;
-                EXPECT_GT(cells[p].projected_area_check, 1.0 - 1e-7) << p;
-                EXPECT_LT(cells[p].projected_area_check, 1.0 + 1e-3) << p;
-            }
+            const auto [lk, lc, ik, ic] = compare_fits(km, cells);
             const double n = double(km.size());
             std::printf("x%d from cells: mean log-likelihood %.4f (k-means++ %.4f), M-steps %.1f (%.1f)\n", F, lc / n,
                         lk / n, ic / n, ik / n);
