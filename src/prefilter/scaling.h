@@ -32,8 +32,10 @@
 //
 // Splatting (the cost lever). A line of sight along -ωo and the path it starts do not depend
 // on ωi, so every path vertex sends next-event terms towards ALL N² ωi bins: one traced path
-// gives a sample to N² bins. Shadow rays rising faster than the map's steepest slope are
-// skipped exactly (detail::unoccluded_by_slope). On h_low, f'_low (a sum over ~144 nodes) is
+// gives a sample to N² bins. Shadow rays rising faster than a local bound on the slopes that
+// can shadow their origin are skipped exactly, and the others stop where nothing farther can
+// block them (slope_bound.h: the steepest |∇h| around the origin and the heights of coarser
+// rings; the logo's h_low shadow rays 121M -> 65M a round, its round 1.23x faster). On h_low, f'_low (a sum over ~144 nodes) is
 // estimated per line from `low_nodes` nodes drawn by weight (unbiased), and line k on h_low
 // reuses line k's ωo, ωi shift and position on the original (common random numbers).
 //
