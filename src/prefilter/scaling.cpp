@@ -76,10 +76,12 @@ struct Strata {
 struct LineBuf {
     std::vector<double> a, b, c;  // N² x 3
     explicit LineBuf(int bins) : a(size_t(bins) * 3), b(size_t(bins) * 3), c(size_t(bins) * 3) {}
-    void clear() {
+    /// Zeroes a, and b and c where asked: a line on h_low or of the control variate writes a
+    /// alone, and c is written only with the control variate.
+    void clear(bool with_b, bool with_c) {
         std::fill(a.begin(), a.end(), 0.0);
-        std::fill(b.begin(), b.end(), 0.0);
-        std::fill(c.begin(), c.end(), 0.0);
+        if (with_b) std::fill(b.begin(), b.end(), 0.0);
+        if (with_c) std::fill(c.begin(), c.end(), 0.0);
     }
 };
 
@@ -489,13 +491,14 @@ struct ScalingEstimator::Task {
             const int s = k & 1;
             if (k < Ko) {
                 const auto t0 = Clock::now();
-                o[s].clear();
+                o[s].clear(true, cv);
                 if (trace_original_line(k, Ko, o[s])) {
                     ++acc_orig;
                     area_orig += q_ratio;
                     // The line's weight |Q(ωo)| / |P| (scaling.h, "Weights"): 1 when Q = P.
                     if (q_ratio != 1.0)
-                        for (std::vector<double> *x : {&o[s].a, &o[s].b, &o[s].c}) scale_by(x->data(), q_ratio, x->size());
+                        for (std::vector<double> *x : {&o[s].a, &o[s].b, &o[s].c})
+                            if (x != &o[s].c || cv) scale_by(x->data(), q_ratio, x->size());
                     if (cv)  // g - c (scaling.h, "Control variate")
                         for (size_t q = 0; q < size_t(B) * 3; ++q) o[s].a[q] -= o[s].c[q], o[s].b[q] -= o[s].c[q];
                     add_line(est.m_n1, o[s].a);  // the other levels copy the lead's sums (share_numerators)
@@ -517,7 +520,7 @@ struct ScalingEstimator::Task {
                 if (k >= Kl) continue;
                 const auto t0 = Clock::now();
                 LineBuf &lb = l[2 * j + size_t(s)];
-                lb.clear();
+                lb.clear(false, false);
                 if (trace_low_line(*group[j], j, k, Kl, lb)) {
                     ++acc_low[j];
                     w_low[j] += q_ratio;
@@ -575,7 +578,7 @@ struct ScalingEstimator::Task {
         LineBuf c[2] = {LineBuf(B), LineBuf(B)};
         for (int k = 0; k < K; ++k) {
             const int s = k & 1;
-            c[s].clear();
+            c[s].clear(false, false);
             PCG32 lr(hash_combine(hash_combine(round_seed ^ 0xc0417a1eULL, uint64_t(task)), uint64_t(k)),
                      mix_bits(round_seed ^ 0xcfULL));
             Vec3 wo;
