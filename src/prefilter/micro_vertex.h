@@ -95,8 +95,8 @@ inline ShootingRegion shooting_region(const Heightfield &hf, const PatchRegion &
 /// A ray leaving a point ON the surface with rise/run above a slope L that bounds the surface's
 /// rise along every horizontal line from there (SlopeBound: the largest |∇h| around the point,
 /// and the heights farther away) can never meet the surface again, so its shadow test is skipped
-/// exactly.
-/// Whether direction w (unit) rises faster than slope L, with a relative margin for rounding.
+/// exactly. This tells whether direction w (unit) rises faster than L, with a relative margin
+/// for rounding.
 inline bool unoccluded_by_slope(Vec3 w, double L) {
     const double run = std::sqrt(double(w.x) * w.x + double(w.y) * w.y);
     return double(w.z) > L * run * (1.0 + 1e-4) + 1e-6;

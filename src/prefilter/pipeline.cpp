@@ -166,7 +166,8 @@ std::vector<PatchNdf> svndf_stage(const PipelineOptions &o, const HeightMap &map
     nopt.start_from_cells = o.ndf_from_children && !from;  // the first level: from its cells' normals
     std::vector<PatchNdf> ndf = from ? fit_svndf_from(map_units, F, *finer, finer_F, nopt) : fit_svndf(map_units, F, nopt);
     timing["svndf_fit_s"] = since(t0);
-    timing["svndf_start"] = from ? fmt::format("x{} children", finer_F) : std::string(nopt.start_from_cells ? "cells" : "kmeans++");
+    timing["svndf_start"] =
+        from ? fmt::format("x{} children", finer_F) : std::string(nopt.start_from_cells ? "cells" : "kmeans++");
     return ndf;
 }
 

@@ -48,6 +48,21 @@ void scale_by(double *x, double f, size_t n) {
     for (; q < n; ++q) x[q] *= f;
 }
 
+/// The shadow-ray roulette (scaling.h, "Shadow-ray roulette") on next-event term c of a line of
+/// weight q (|Q| / |P|), against ref_scale times the largest channel of its bin's running sum m:
+/// a term below that reference survives with probability cm / ref (u = draw(), drawn only then)
+/// and is weighted by the inverse, per channel in double (ref / cm may pass float's range; c's
+/// channels <= c.max(), so the products stay <= ref / q). False: the term is dropped.
+template <class Draw>
+bool roulette_keeps(Spectrum &c, const double *m, double ref_scale, double q, Draw &&draw) {
+    if (!(ref_scale > 0.0)) return true;
+    const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = c.max() * q;
+    if (!(cm < ref)) return true;
+    if (!(draw() * ref < cm)) return false;  // traced with probability cm / ref
+    for (int i = 0; i < 3; ++i) c[i] = float(double(c[i]) * (ref / cm));
+    return true;
+}
+
 /// The strata of K lines over the shooting region Q (scaling.h, "Standard errors"): H = K / 2
 /// cells of a near-square nx x ny grid (ny the largest divisor of H at most √H), two lines each
 /// (lines 2h and 2h + 1 in cell h); an odd K's last line is unstratified.
@@ -272,11 +287,11 @@ struct ScalingEstimator::Task {
             if (l.z > 0.f) lwi[up.size()] = l, up.push_back(b);
         }
         est.m_base.eval_batch(v.ctx, lwo, lwi.data(), int(up.size()), fo.data());
+        // The slope above which a direction cannot be shadowed from org (slope_bound.h).
+        const SlopeBound::Local lb =
+            est.orig_bound().local(double(v.ox) + double(org.x), double(v.oy) + double(org.y), org.z);
         // The roulette's reference: ε times the bin's mean term per line so far (this round's
         // lines before this one and the earlier rounds'), of the sum this vertex adds to.
-        // The slope above which a direction cannot be shadowed from org (slope_bound.h).
-        const SlopeBound::Local lb = est.orig_bound().local(double(v.ox) + double(org.x), double(v.oy) + double(org.y), org.z);
-        const double slope = lb.slope;
         const double eps = cv ? 0.0 : est.m_opt.shadow_roulette;
         const double before = double(est.m_shot[task]) + double(orig_lines) - 1.0;
         const std::vector<double> &ref_sum = depth == 1 ? est.m_n1 : est.m_nir;
@@ -290,18 +305,13 @@ struct ScalingEstimator::Task {
                 for (int q = 0; q < 3; ++q) pc[q] += f[q];
             }
             Spectrum c = throughput * f;
-            const bool needs_ray = !unoccluded_by_slope(wi[size_t(b)], slope);
-            if (needs_ray && ref_scale > 0.0) {  // a term without a shadow ray gains nothing from it
-                const double *m = &ref_sum[base_idx + size_t(b) * 3];
-                const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = c.max() * q_ratio;  // the sums' scale
-                if (cm < ref) {
-                    if (!(rr.next_double() * ref < cm)) continue;  // traced with probability cm / ref
-                    // times 1 / probability, per channel in double: ref / cm may pass float's range
-                    // (c's channels ≤ c.max(), so the products stay ≤ ref / |Q|/|P|).
-                    for (int q = 0; q < 3; ++q) c[q] = float(double(c[q]) * (ref / cm));
-                }
-            }
-            if (needs_ray && est.m_orig.occluded(org, wi[size_t(b)], 0.f, SlopeBound::reach(lb, wi[size_t(b)]), v.ox, v.oy))
+            const bool needs_ray = !unoccluded_by_slope(wi[size_t(b)], lb.slope);
+            // A term without a shadow ray gains nothing from the roulette.
+            if (needs_ray && !roulette_keeps(c, &ref_sum[base_idx + size_t(b) * 3], ref_scale, q_ratio,
+                                             [this] { return rr.next_double(); }))
+                continue;
+            if (needs_ray &&
+                est.m_orig.occluded(org, wi[size_t(b)], 0.f, SlopeBound::reach(lb, wi[size_t(b)]), v.ox, v.oy))
                 continue;
             double *pir = &buf.b[size_t(b) * 3];
             for (int q = 0; q < 3; ++q) pir[q] += c[q];
@@ -411,24 +421,20 @@ struct ScalingEstimator::Task {
         const double ref_scale = eps > 0.0 && before >= kRouletteLines ? eps / before : 0.0;
         PCG32 lrr;
         bool lrr_drawn = false;
-        const SlopeBound::Local lb = le.m_low_bound->local(double(v.ox) + double(org.x), double(v.oy) + double(org.y), org.z);
-        const double slope = lb.slope;
+        auto draw = [&] {
+            if (!lrr_drawn) lrr = low_roulette_rng(k), lrr_drawn = true;
+            return lrr.next_double();
+        };
+        const SlopeBound::Local lb =
+            le.m_low_bound->local(double(v.ox) + double(org.x), double(v.oy) + double(org.y), org.z);
         for (int b = 0; b < B; ++b) {
             const Vec3 &w = wi[size_t(b)];
             Spectrum f = fl[size_t(b)];
             if (f.is_black() || !(dot(v.n, w) > 0.f)) continue;  // below the h_low facet: self-shadowed
-            if (!unoccluded_by_slope(w, slope)) {
-                if (ref_scale > 0.0) {
-                    const double *m = &le.m_d[base_idx + size_t(b) * 3];
-                    const double ref = std::max({m[0], m[1], m[2]}) * ref_scale, cm = f.max() * q_ratio;
-                    if (cm < ref) {
-                        if (!lrr_drawn) lrr = low_roulette_rng(k), lrr_drawn = true;
-                        if (!(lrr.next_double() * ref < cm)) continue;  // traced with probability cm / ref
-                        for (int q = 0; q < 3; ++q) f[q] = float(double(f[q]) * (ref / cm));
-                    }
-                }
-                if (le.m_low.occluded(org, w, 0.f, SlopeBound::reach(lb, w), v.ox, v.oy)) continue;
-            }
+            if (!unoccluded_by_slope(w, lb.slope) &&
+                (!roulette_keeps(f, &le.m_d[base_idx + size_t(b) * 3], ref_scale, q_ratio, draw) ||
+                 le.m_low.occluded(org, w, 0.f, SlopeBound::reach(lb, w), v.ox, v.oy)))
+                continue;
             double *p = &out.a[size_t(b) * 3];
             for (int q = 0; q < 3; ++q) p[q] += f[q];
         }
@@ -496,9 +502,11 @@ struct ScalingEstimator::Task {
                     ++acc_orig;
                     area_orig += q_ratio;
                     // The line's weight |Q(ωo)| / |P| (scaling.h, "Weights"): 1 when Q = P.
-                    if (q_ratio != 1.0)
-                        for (std::vector<double> *x : {&o[s].a, &o[s].b, &o[s].c})
-                            if (x != &o[s].c || cv) scale_by(x->data(), q_ratio, x->size());
+                    if (q_ratio != 1.0) {
+                        scale_by(o[s].a.data(), q_ratio, o[s].a.size());
+                        scale_by(o[s].b.data(), q_ratio, o[s].b.size());
+                        if (cv) scale_by(o[s].c.data(), q_ratio, o[s].c.size());
+                    }
                     if (cv)  // g - c (scaling.h, "Control variate")
                         for (size_t q = 0; q < size_t(B) * 3; ++q) o[s].a[q] -= o[s].c[q], o[s].b[q] -= o[s].c[q];
                     add_line(est.m_n1, o[s].a);  // the other levels copy the lead's sums (share_numerators)

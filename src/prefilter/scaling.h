@@ -35,9 +35,10 @@
 // gives a sample to N² bins. Shadow rays rising faster than a local bound on the slopes that
 // can shadow their origin are skipped exactly, and the others stop where nothing farther can
 // block them (slope_bound.h: the steepest |∇h| around the origin and the heights of coarser
-// rings; the logo's h_low shadow rays 121M -> 65M a round, its round 1.23x faster). On h_low, f'_low (a sum over ~144 nodes) is
-// estimated per line from `low_nodes` nodes drawn by weight (unbiased), and line k on h_low
-// reuses line k's ωo, ωi shift and position on the original (common random numbers).
+// rings; the logo's h_low shadow rays 121M -> 65M a round, its round 1.23x faster). On h_low,
+// f'_low (a sum over ~144 nodes) is estimated per line from `low_nodes` nodes drawn by weight
+// (unbiased), and line k on h_low reuses line k's ωo, ωi shift and position on the original
+// (common random numbers).
 //
 // Work: for every patch P (M²) and ωo bin (N²), `orig_paths` lines of sight on G_orig
 // (positions stratified, two lines a stratum: "Standard errors") and `low_paths` on G_low; (P, ωo bin)
@@ -147,7 +148,7 @@
 // denominator term per accepted h_low line of the level, its decisions from the line's own
 // stream, the same for every level): a steep h_low (the logo's x4, 512²) traces a shadow ray
 // for nearly every one of the N² terms of f'_low, most of them tiny. The logo's chain, two
-// rounds: 62.7 -> 52.1 s (S 0.0582 -> 0.0594); the plane's one round 32.2 -> 28.1 s (S equal).
+// rounds: 62.7 -> 52.1 s (S 0.0582 -> 0.0594); the plane's one round 32.2 -> 27.8 s (S equal).
 //
 // Line allocation (allocate_lines; `meso prefilter --allocate-lines`). A level's S error per round
 // is about A / Ko + D / Kl: A the original's variance per line (its relative error², the median

@@ -17,7 +17,7 @@ inline int64_t wrap(int64_t a, int n) {
 
 SlopeBound::SlopeBound(const Heightfield &hf) : m_hf(hf) {
     const int W = hf.width(), H = hf.height();
-    // Level 0: each cell's largest |∇h| (attained at a corner; as detail::max_slope).
+    // Level 0: each cell's largest |∇h| of the bilinear patch (attained at a corner).
     Level l0{W, H, {}, std::vector<float>(size_t(W) * H)};
     double g2 = 0;
     float top = -std::numeric_limits<float>::infinity();

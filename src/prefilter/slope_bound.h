@@ -24,8 +24,8 @@
 // the N² next-event directions of a vertex clear it where the global slope clears few.
 //
 // Levels k are kept while 2^k divides both map sizes (nodes then tile the periodic map), so any
-// size works (an odd one keeps level 0 and the global term only). Memory: two floats per cell
-// at level 0 and about 2/3 of that above (slopes at levels 0-2, heights from level 1 up).
+// size works (an odd one keeps level 0 and the global term only). Memory: about 1.7 floats a
+// cell (slopes at levels 0-2: 1 + 1/4 + 1/16; heights from level 1 up: about 1/3).
 #pragma once
 #include <cstdint>
 #include <vector>
