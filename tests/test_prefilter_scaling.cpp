@@ -822,3 +822,27 @@ TEST(PrefilterLevelError, BumpsAreRemovedVarianceAndMismatchesThrow) {
     o.lines = 1;
     EXPECT_THROW(measure_level_error(L.orig, *base, L.low, *L.flow, 8, o), MesoError);
 }
+
+// The stopping rule's standard errors (current_S_rel_se, from a green-only fit in a per-thread
+// workspace reused between estimators and rounds) are exactly those of the full finish(): two
+// estimators of different sizes (M = 2, N = 3 and M = 1, N = 4) take turns, so the workspace is
+// resized and reused, with reciprocity on and later rounds tracing some bins only.
+TEST(PrefilterScalingEstimator, StoppingRuleErrorsMatchTheFinishedTables) {
+    std::map<std::string, std::string> p{{"size", "32"}, {"amplitude", "0.05"}, {"seed", "3"}};
+    HeightMap map = generate_height_map("fbm", p).height;
+    auto base = make_material(R"({"type": "conductor", "material": "Al", "alpha": 0.3})");
+    Level L(map, 8, base);
+    ScalingOptions oa = small_options(2, 3, 16), ob = small_options(1, 4, 24);
+    oa.target_error = ob.target_error = 0.05;
+    ScalingEstimator a(L.orig, *base, L.low, *L.flow, oa), b(L.orig, *base, L.low, *L.flow, ob);
+    for (int r = 0; r < 3; ++r)
+        for (ScalingEstimator *e : {&a, &b}) {
+            e->add_round();
+            const double rule = e->current_S_rel_se();
+            ScalingTables single, ir;
+            ScalingStats st;
+            e->finish(single, ir, st);
+            EXPECT_GT(rule, 0.0);
+            EXPECT_EQ(rule, std::max(st.S_rel_se_median, st.S_ir_rel_se_median)) << "round " << r;
+        }
+}

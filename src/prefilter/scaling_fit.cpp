@@ -75,33 +75,35 @@ namespace {
 /// h_low with f'_low), the variances of those means and their covariance (scaling.h,
 /// "Standard errors").
 struct BinPairMoments {
-    size_t BB = 0;  ///< angular bin pairs (bo, bi), index bo B + bi
+    size_t BB = 0;       ///< angular bin pairs (bo, bi), index bo B + bi
+    int c0 = 0, nc = 3;  ///< the channels held: c0 .. c0 + nc - 1 (the stopping rule needs green alone)
     std::vector<double> num, den, vnum, vden, cov;
-    size_t at(int p, size_t j, int c) const { return (size_t(p) * BB + j) * 3 + c; }
+    size_t at(int p, size_t j, int c) const { return (size_t(p) * BB + j) * size_t(nc) + size_t(c - c0); }
 };
 
 /// The sums of one table set (numerator `sum`, its pair-difference squares `sq`, denominator
-/// `dsum`/`dsq`, the cross terms `cross`) as means, variances and covariances of the means.
-BinPairMoments bin_pair_moments(const std::vector<double> &sum, const std::vector<double> &sq,
-                                const std::vector<double> &dsum, const std::vector<double> &dsq,
-                                const std::vector<double> &cross, const std::vector<double> &count_orig,
-                                const std::vector<double> &count_low, const std::vector<double> &cv,
-                                const std::vector<double> &cvsq, const std::vector<double> &count_cv, int P, int B) {
-    BinPairMoments m;
-    m.BB = size_t(B) * B;
-    const size_t n_all = size_t(P) * m.BB * 3;
+/// `dsum`/`dsq`, the cross terms `cross`) as means, variances and covariances of the means, of
+/// channels c0 .. c0 + nc - 1, into m (its vectors keep their capacity: no new pages when reused).
+void bin_pair_moments(const std::vector<double> &sum, const std::vector<double> &sq, const std::vector<double> &dsum,
+                      const std::vector<double> &dsq, const std::vector<double> &cross,
+                      const std::vector<double> &count_orig, const std::vector<double> &count_low,
+                      const std::vector<double> &cv, const std::vector<double> &cvsq,
+                      const std::vector<double> &count_cv, int P, int B, int c0, int nc, BinPairMoments &m) {
+    m.BB = size_t(B) * B, m.c0 = c0, m.nc = nc;
+    const size_t n_all = size_t(P) * m.BB * size_t(nc);
     m.num.resize(n_all), m.den.resize(n_all), m.vnum.resize(n_all), m.vden.resize(n_all), m.cov.resize(n_all);
     tbb::parallel_for(size_t(0), size_t(P) * B, [&](size_t t) {
-        const double no = count_orig[t], nl = count_low[t], nc = cv.empty() ? 0.0 : count_cv[t];
-        for (size_t k = t * B * 3; k < (t + 1) * B * 3; ++k) {
-            m.num[k] = (no > 0 ? sum[k] / no : 0.0) + (nc > 0 ? cv[k] / nc : 0.0);
-            m.vnum[k] = (no > 0 ? sq[k] / (no * no) : 0.0) + (nc > 0 ? cvsq[k] / (nc * nc) : 0.0);
-            m.den[k] = nl > 0 ? dsum[k] / nl : 0.0;
-            m.vden[k] = nl > 0 ? dsq[k] / (nl * nl) : 0.0;
-            m.cov[k] = no > 0 && nl > 0 ? cross[k] / (no * nl) : 0.0;
-        }
+        const double no = count_orig[t], nl = count_low[t], nc_ = cv.empty() ? 0.0 : count_cv[t];
+        for (size_t e = t * B; e < (t + 1) * B; ++e)  // e = p BB + j: task t = p B + bo, j = bo B + bi
+            for (int c = c0; c < c0 + nc; ++c) {
+                const size_t k = e * 3 + size_t(c), o = e * size_t(nc) + size_t(c - c0);
+                m.num[o] = (no > 0 ? sum[k] / no : 0.0) + (nc_ > 0 ? cv[k] / nc_ : 0.0);
+                m.vnum[o] = (no > 0 ? sq[k] / (no * no) : 0.0) + (nc_ > 0 ? cvsq[k] / (nc_ * nc_) : 0.0);
+                m.den[o] = nl > 0 ? dsum[k] / nl : 0.0;
+                m.vden[o] = nl > 0 ? dsq[k] / (nl * nl) : 0.0;
+                m.cov[o] = no > 0 && nl > 0 ? cross[k] / (no * nl) : 0.0;
+            }
     });
-    return m;
 }
 
 /// The reciprocal half of S's numerators (scaling.h, "Reciprocity"): per bin pair j = (bo, bi),
@@ -136,7 +138,7 @@ void apply_reciprocity(BinPairMoments &m, const Reciprocal &r, int P, int N, boo
         for (int bi = 0; bi < B; ++bi) {
             if (bi == bo) continue;
             const size_t j = size_t(bo) * B + size_t(bi);
-            for (int c = 0; c < 3; ++c) {
+            for (int c = m.c0; c < m.c0 + m.nc; ++c) {
                 double wn = 0, n = 0, vn = 0, wr = 0, rr = 0, vr = 0, pooled = 0, vpooled = 0;
                 for (int p = 0; p < P; ++p) {
                     const size_t k = m.at(p, j, c);
@@ -434,22 +436,33 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
                                    std::vector<double> *per_bo, double *rel_var) const {
     const int M = m_opt.M, N = m_opt.N, B = m_bins, P = M * M;
     stats = m_stats;
+    // The stopping rule's finish (per_bo: every round, every level) needs S's standard errors,
+    // which are the green channel's (standard_errors), and no tables: it fits channel 1 alone, and
+    // its moments live in one workspace per thread, reused from round to round (a new 100 MB a
+    // table set each round had cost the plane chain about 2.6 s a round, mostly page faults).
+    struct Work {
+        BinPairMoments m, mr;
+    };
+    thread_local Work tl_work;
+    Work local;
+    Work &w = per_bo ? tl_work : local;
+    const int c0 = per_bo ? 1 : 0, nc = per_bo ? 1 : 3;
     // One table set: moments, rank-1 factors, tables, then the diagnostics of the fit.
     auto build = [&](bool use_ir, ScalingTables &tab, TableStats &o) {
-        BinPairMoments m = bin_pair_moments(use_ir ? m_nir : m_n1, use_ir ? m_nirsq : m_n1sq, m_d, m_dsq,
-                                            use_ir ? m_nirx : m_n1x, m_area, m_wsum_low, m_cv, m_cvsq, m_wsum_cv,
-                                            P, B);
+        BinPairMoments &m = w.m, &mr = w.mr;
+        bin_pair_moments(use_ir ? m_nir : m_n1, use_ir ? m_nirsq : m_n1sq, m_d, m_dsq, use_ir ? m_nirx : m_n1x,
+                         m_area, m_wsum_low, m_cv, m_cvsq, m_wsum_cv, P, B, c0, nc, m);
         auto fit = [&](const BinPairMoments &mm, Rank1Factors &f, TableStats &st) {
             f.T.assign(size_t(P) * 3, 1.0);
             f.S.assign(mm.BB * 3, 1.0);
-            tbb::parallel_for(0, 3, [&](int c) { fit_rank1_channel(mm, P, c, m_opt.epsilon, f); });  // channels apart
+            tbb::parallel_for(mm.c0, mm.c0 + mm.nc, [&](int c) { fit_rank1_channel(mm, P, c, m_opt.epsilon, f); });
             standard_errors(mm, f, m_count_orig, m_count_low, P, N, st);
         };
         Rank1Factors f;
         fit(m, f, o);
         if (!m_r1.empty()) {
             // The reciprocal average (scaling.h, "Reciprocity"), kept when it lowers S's median error.
-            BinPairMoments mr = m;
+            mr = m;  // copy-assignment keeps mr's capacity
             ReciprocityCheck check;
             apply_reciprocity(mr, Reciprocal{use_ir ? m_rir : m_r1, use_ir ? m_rirsq : m_r1sq, m_area, m_shot},
                               P, N, m_opt.reciprocity, check);
@@ -459,12 +472,11 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
                 Rank1Factors fr;
                 TableStats orr;
                 fit(mr, fr, orr);
-                if (orr.med < o.med) m = std::move(mr), f = std::move(fr), o = std::move(orr), o.reciprocity_used = true;
+                if (orr.med < o.med) std::swap(m, mr), f = std::move(fr), o = std::move(orr), o.reciprocity_used = true;
             }
             for (int k = 0; k < 3; ++k) o.reciprocity[k] = ratios[k];
         }
-        write_tables(f, M, N, tab);
-        if (!per_bo) rank1_check(m, f, P, N, o);
+        if (!per_bo) write_tables(f, M, N, tab), rank1_check(m, f, P, N, o);
     };
     TableStats o1;
     build(false, single, o1);
