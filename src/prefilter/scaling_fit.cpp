@@ -7,6 +7,8 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <memory>
+#include <mutex>
 #include <vector>
 
 namespace meso::prefilter {
@@ -430,6 +432,49 @@ void per_wo_bin_medians(const std::vector<double> &pair_rel, int B, std::vector<
         out[size_t(bo)] = median_of(v);
     }
 }
+/// Workspaces of the stopping rule's finish, reused across rounds and levels (their vectors keep
+/// their capacity). A finish takes one for its duration: the levels' checks run in parallel and a
+/// thread waiting in a finish's nested parallel loop may start another level's, so a workspace is
+/// never shared (not per thread). The pool holds at most as many as ever ran at once.
+class MomentsPool {
+public:
+    struct Work {
+        BinPairMoments m, mr;
+    };
+    class Lease {
+    public:
+        explicit Lease(MomentsPool *pool) : m_pool(pool), m_work(pool ? pool->take() : std::make_unique<Work>()) {}
+        ~Lease() {
+            if (m_pool) m_pool->give(std::move(m_work));
+        }
+        Lease(const Lease &) = delete;
+        Lease &operator=(const Lease &) = delete;
+        Work &work() { return *m_work; }
+
+    private:
+        MomentsPool *m_pool;
+        std::unique_ptr<Work> m_work;
+    };
+    std::unique_ptr<Work> take() {
+        std::lock_guard<std::mutex> lock(m_mutex);
+        if (m_free.empty()) return std::make_unique<Work>();
+        std::unique_ptr<Work> w = std::move(m_free.back());
+        m_free.pop_back();
+        return w;
+    }
+    void give(std::unique_ptr<Work> w) {
+        std::lock_guard<std::mutex> lock(m_mutex);
+        m_free.push_back(std::move(w));
+    }
+
+private:
+    std::mutex m_mutex;
+    std::vector<std::unique_ptr<Work>> m_free;
+};
+MomentsPool &moments_pool() {
+    static MomentsPool pool;
+    return pool;
+}
 }  // namespace
 
 void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab, ScalingStats &stats,
@@ -438,14 +483,10 @@ void ScalingEstimator::finish_impl(ScalingTables &single, ScalingTables &ir_tab,
     stats = m_stats;
     // The stopping rule's finish (per_bo: every round, every level) needs S's standard errors,
     // which are the green channel's (standard_errors), and no tables: it fits channel 1 alone, and
-    // its moments live in one workspace per thread, reused from round to round (a new 100 MB a
-    // table set each round had cost the plane chain about 2.6 s a round, mostly page faults).
-    struct Work {
-        BinPairMoments m, mr;
-    };
-    thread_local Work tl_work;
-    Work local;
-    Work &w = per_bo ? tl_work : local;
+    // its moments live in a workspace from a pool, reused from round to round (a new 100 MB a
+    // table set each round had cost the plane chain about 2 s a round, mostly page faults).
+    MomentsPool::Lease lease(per_bo ? &moments_pool() : nullptr);
+    MomentsPool::Work &w = lease.work();
     const int c0 = per_bo ? 1 : 0, nc = per_bo ? 1 : 3;
     // One table set: moments, rank-1 factors, tables, then the diagnostics of the fit.
     auto build = [&](bool use_ir, ScalingTables &tab, TableStats &o) {
