@@ -258,6 +258,21 @@ TEST(CmdPrefilter, WritesACompleteModel) {
     EXPECT_EQ(l0["svndf"]["start"], "cells");
     EXPECT_EQ(j["levels"][1]["svndf"]["start"], "x8 children");
     EXPECT_TRUE(std::isfinite(j["levels"][1]["svndf"]["mean_log_likelihood"].get<double>()));
+    // --ndf-tolerance (default 1e-5) reaches the EM: 1e-9 takes more M-steps, to a likelihood
+    // at least as high.
+    EXPECT_EQ(j["parameters"]["ndf_tolerance"].get<double>(), 1e-5);
+    {
+        const std::string tight = make_model("tight", {"--generator", "fbm", "--size", "64", "-p", "amplitude=0.02",
+                                                       "--scales", "8,16", "-M", "2", "-N", "5", "--paths", "9",
+                                                       "--low-paths", "9", "--seed", "5", "--ndf-tolerance", "1e-9"});
+        const nlohmann::json t = PrefilteredModel::load(tight).manifest;
+        EXPECT_EQ(t["parameters"]["ndf_tolerance"].get<double>(), 1e-9);
+        for (int l = 0; l < 2; ++l) {
+            const nlohmann::json &a = j["levels"][l]["svndf"], &b = t["levels"][l]["svndf"];
+            EXPECT_GT(b["mean_em_iterations"].get<double>(), a["mean_em_iterations"].get<double>()) << l;
+            EXPECT_GE(b["mean_log_likelihood"].get<double>(), a["mean_log_likelihood"].get<double>() - 1e-9) << l;
+        }
+    }
     EXPECT_GT(l0["S_ir_rel_std_error"]["median"].get<double>(), 0.0);
     EXPECT_TRUE(l0.contains("rank1_ir"));
     EXPECT_TRUE(l0.contains("storage_bytes"));
@@ -372,6 +387,10 @@ TEST(CmdPrefilter, BadInputIsNamed) {
     EXPECT_NE(err({"--generator", "fbm", "--wrap", "tile", "-o", "/tmp/x"}).find(R"(--wrap: expected "repeat", "clamp" or "mirror", got "tile")"),
               std::string::npos);
     EXPECT_NE(err({"--generator", "fbm", "--shadow-roulette", "-1", "-o", "/tmp/x"}).find("--shadow-roulette"),
+              std::string::npos);
+    EXPECT_NE(err({"--generator", "fbm", "--ndf-tolerance", "nan", "-o", "/tmp/x"}).find("--ndf-tolerance"),
+              std::string::npos);
+    EXPECT_NE(err({"--generator", "fbm", "--ndf-tolerance", "2", "-o", "/tmp/x"}).find("--ndf-tolerance"),
               std::string::npos);
     EXPECT_NE(err({"--generator", "fbm"}).find("-o"), std::string::npos);
     EXPECT_NE(err({"--generator", "fbm", "--ndf-start", "nearest", "-o", "/tmp/x"}).find("--ndf-start"), std::string::npos);

@@ -88,6 +88,8 @@ prefilter::PipelineOptions validate(const PrefilterFlags &f) {
     o.flow_auto = flow == 3;
     if (!(o.height_scale > 0) || !std::isfinite(o.height_scale) || !(o.tile_size > 0) || !std::isfinite(o.tile_size))
         throw UsageError("--height-scale and --tile-size must be positive and finite");
+    if (!(o.ndf_tolerance >= 0.0 && o.ndf_tolerance <= 1.0))
+        throw UsageError("--ndf-tolerance must be a number in [0, 1], got " + std::to_string(o.ndf_tolerance));
     if (!o.wrap.empty()) parse_choice("--wrap", o.wrap, {"repeat", "clamp", "mirror"});
     o.scales = parse_scales(f.scales);
     if (o.M < 1 || o.N < 1 || o.N > 64 || o.lobes < 1 || o.lobes > 16)
@@ -180,6 +182,11 @@ SubcommandRegistrar reg_prefilter{
              ->check(CLI::NonNegativeNumber);
          app.add_option("--ndf-samples", o->samples_per_cell, "n x n micro-normals per fine cell for the NDF fit")->capture_default_str()
              ->check(CLI::Range(1, 32));
+         app.add_option("--ndf-tolerance", o->ndf_tolerance,
+                        "a patch's vMF EM stops once an iteration changes the mean log-likelihood per micro-normal by "
+                        "at most this times (1 + |L|) (0: always the iteration limit)")
+             ->capture_default_str()
+             ->check(CLI::Range(0.0, 1.0));
          app.add_option("--ndf-start", o->ndf_from_children,
                         "where each patch's vMF EM starts: children (a level whose factor is a multiple of the previous "
                         "level's: its children's lobes, merged; the first level: its cells' normals, one lobe a cell, "

@@ -116,7 +116,7 @@ PrefilteredModel empty_model(const PipelineOptions &o, const Inputs &in) {
                                     {"reciprocity", o.cv_lines > 0 || o.reciprocity == 0 ? "off" : o.reciprocity == 1 ? "check" : "on"},
                                     {"directions", o.jitter_directions ? "jitter" : "centres"}, {"target_error", o.target_error},
                                     {"max_rounds", o.max_rounds}, {"max_seconds", o.max_seconds}, {"epsilon", o.epsilon}, {"seed", o.seed},
-                                    {"ndf_samples_per_cell", o.samples_per_cell},
+                                    {"ndf_samples_per_cell", o.samples_per_cell}, {"ndf_tolerance", o.ndf_tolerance},
                                     {"ndf_start", o.ndf_from_children ? "children" : "kmeans"},
                                     {"quadrature_polar", o.quad_polar}, {"quadrature_azimuth", o.quad_azimuth},
                                     {"flow_projected_area", o.flow_projected_area && !o.flow_lobes},
@@ -162,6 +162,7 @@ std::vector<PatchNdf> svndf_stage(const PipelineOptions &o, const HeightMap &map
     // still cuts nodes off for ωo within 0.06° of the horizon; 1e9 (vmf.h's limit) makes
     // that 3e-5 rad.
     nopt.em.max_kappa = 1e9;
+    nopt.em.tolerance = o.ndf_tolerance;
     const bool from = o.ndf_from_children && finer && finer_F > 0 && F % finer_F == 0;
     nopt.start_from_cells = o.ndf_from_children && !from;  // the first level: from its cells' normals
     std::vector<PatchNdf> ndf = from ? fit_svndf_from(map_units, F, *finer, finer_F, nopt) : fit_svndf(map_units, F, nopt);

@@ -37,6 +37,9 @@ struct PipelineOptions {
     int N = 15;                ///< -N: angular resolution of S
     int lobes = 6;             ///< --lobes: vMF lobes per patch NDF
     int samples_per_cell = 2;  ///< --ndf-samples
+    /// --ndf-tolerance: each patch's EM stops once an iteration changes the mean log-likelihood
+    /// per micro-normal by at most this times (1 + |L|) (VmfEmOptions::tolerance; 0: max iterations)
+    double ndf_tolerance = 1e-5;
     /// --ndf-start children (true, default): a level whose factor is a multiple of the previous
     /// level's starts each patch's EM from its children's merged lobes (patch_ndf.h,
     /// fit_svndf_from); kmeans (false): k-means++ starts at every level
