@@ -627,6 +627,46 @@ double median_rel_spread(const std::vector<std::vector<double>> &per_entry) {
     std::nth_element(rel.begin(), rel.begin() + long(rel.size() / 2), rel.end());
     return rel[rel.size() / 2];
 }
+/// S of a reciprocity study over seeds, in two modes (0: the direct estimate, 1: the reciprocal
+/// average): per mode the totals of S per ring class (both bins inside the outer ring, one in it,
+/// both in it) and their second moments over seeds, every entry's values, and the reported
+/// median errors.
+struct TwoModeStudy {
+    int N, B, seeds;
+    double tot[2][3] = {}, tot2[2][3] = {};
+    std::vector<std::vector<double>> S[2];
+    std::vector<double> rep[2];
+    TwoModeStudy(int n, int s) : N(n), B(n * n), seeds(s) {
+        for (auto &v : S) v.resize(size_t(B) * B);
+    }
+    bool outer(int b) const { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; }
+    void add(int mode, const ScalingTables &single, double reported) {
+        rep[mode].push_back(reported);
+        double t[3] = {};
+        for (int bo = 0; bo < B; ++bo)
+            for (int bi = 0; bi < B; ++bi) {
+                const double v = single.S_bin(bi, bo)[1];
+                S[mode][size_t(bo) * B + bi].push_back(v);
+                t[outer(bi) ? (outer(bo) ? 2 : 1) : (outer(bo) ? 1 : 0)] += v;
+            }
+        for (int k = 0; k < 3; ++k) tot[mode][k] += t[k] / seeds, tot2[mode][k] += t[k] * t[k] / seeds;
+    }
+    double spread(int mode) const { return median_rel_spread(S[mode]); }
+    double reported(int mode) const {
+        std::vector<double> r = rep[mode];
+        std::nth_element(r.begin(), r.begin() + long(r.size() / 2), r.end());
+        return r[r.size() / 2];
+    }
+    /// The two modes' totals per ring class agree within 4 standard errors.
+    void expect_equal_totals() const {
+        for (int k = 0; k < 3; ++k) {
+            double se2 = 0;
+            for (int m = 0; m < 2; ++m) se2 += std::max(0.0, tot2[m][k] - tot[m][k] * tot[m][k]) / (seeds - 1);
+            std::printf("class %d: S total direct %.4f, combined %.4f (+- %.4f)\n", k, tot[0][k], tot[1][k], std::sqrt(se2));
+            EXPECT_NEAR(tot[1][k], tot[0][k], 4 * std::sqrt(se2) + 1e-9) << "class " << k;
+        }
+    }
+};
 }  // namespace
 
 TEST(PrefilterScalingEstimator, ReportedStandardErrorMatchesTheSpreadOverSeeds) {
@@ -677,12 +717,9 @@ TEST(PrefilterScalingEstimator, ReciprocityLowersTheVarianceWithoutBiasOnOneTile
     HeightMap map = generate_height_map("fbm", p).height;
     auto base = make_material(R"({"type": "conductor", "material": "Al", "alpha": 0.3})");
     Level L(map, 8, base);
-    const int seeds = 12, N = 5, B = N * N;
-    auto outer = [&](int b) { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; };
-    double tot[2][3] = {}, tot2[2][3] = {}, spread[2] = {}, reported[2] = {};
-    for (int mode = 0; mode < 2; ++mode) {
-        std::vector<std::vector<double>> S(size_t(B) * B);
-        std::vector<double> rep;
+    const int seeds = 12, N = 5;
+    TwoModeStudy study(N, seeds);
+    for (int mode = 0; mode < 2; ++mode)
         for (int seed = 1; seed <= seeds; ++seed) {
             ScalingOptions o = small_options(1, N, 64);
             o.low_paths = 128, o.low_nodes = 0;  // a quiet denominator: S's noise is the numerator's
@@ -691,35 +728,20 @@ TEST(PrefilterScalingEstimator, ReciprocityLowersTheVarianceWithoutBiasOnOneTile
             o.check_reciprocity = mode == 0 && seed == 1;
             ScalingTables single, ir;
             const ScalingStats st = one_round(L, *base, o, single, ir);
-            rep.push_back(st.S_rel_se_median);
             if (o.check_reciprocity) {
                 std::printf("reciprocity check, M = 1: inner %.4f, wi outer %.4f, wo outer %.4f\n", st.reciprocity_check[0],
                             st.reciprocity_check[1], st.reciprocity_check[2]);
                 for (int k = 0; k < 3; ++k) EXPECT_NEAR(st.reciprocity_check[k], 1.0, 0.08) << k;
             }
-            double t[3] = {};
-            for (int bo = 0; bo < B; ++bo)
-                for (int bi = 0; bi < B; ++bi) {
-                    const double v = single.S_bin(bi, bo)[1];
-                    S[size_t(bo) * B + bi].push_back(v);
-                    t[outer(bi) ? (outer(bo) ? 2 : 1) : (outer(bo) ? 1 : 0)] += v;
-                }
-            for (int k = 0; k < 3; ++k) tot[mode][k] += t[k] / seeds, tot2[mode][k] += t[k] * t[k] / seeds;
+            study.add(mode, single, st.S_rel_se_median);
         }
-        std::nth_element(rep.begin(), rep.begin() + seeds / 2, rep.end());
-        spread[mode] = median_rel_spread(S), reported[mode] = rep[size_t(seeds / 2)];
-    }
+    const double spread[2] = {study.spread(0), study.spread(1)}, reported[2] = {study.reported(0), study.reported(1)};
     std::printf("median rel. spread of S over seeds: direct %.4f, combined %.4f (reported %.4f, %.4f)\n", spread[0],
                 spread[1], reported[0], reported[1]);
     EXPECT_LT(spread[1], 0.95 * spread[0]);
     EXPECT_GT(reported[1], 0.8 * spread[1]);
     EXPECT_LT(reported[1], 1.25 * spread[1]);
-    for (int k = 0; k < 3; ++k) {
-        double se2 = 0;
-        for (int m = 0; m < 2; ++m) se2 += std::max(0.0, tot2[m][k] - tot[m][k] * tot[m][k]) / (seeds - 1);
-        std::printf("class %d: S total direct %.4f, combined %.4f (+- %.4f)\n", k, tot[0][k], tot[1][k], std::sqrt(se2));
-        EXPECT_NEAR(tot[1][k], tot[0][k], 4 * std::sqrt(se2) + 1e-9) << "class " << k;
-    }
+    study.expect_equal_totals();
 }
 
 TEST(PrefilterScalingEstimator, PatchesWithJitteredDirectionsAreReciprocal) {
@@ -879,11 +901,8 @@ TEST(PrefilterScalingEstimator, ReciprocityWithUnequalLineCountsIsUnbiasedAndCal
     auto base = make_material(R"({"type": "conductor", "material": "Al", "alpha": 0.3})");
     Level L(map, 8, base);
     const int seeds = 12, N = 5, B = N * N;
-    auto outer = [&](int b) { return b % N == 0 || b % N == N - 1 || b / N == 0 || b / N == N - 1; };
-    double tot[2][3] = {}, tot2[2][3] = {}, spread[2] = {}, reported[2] = {};
-    for (int mode = 0; mode < 2; ++mode) {
-        std::vector<std::vector<double>> S(size_t(B) * B);
-        std::vector<double> rep;
+    TwoModeStudy study(N, seeds);
+    for (int mode = 0; mode < 2; ++mode)
         for (int seed = 1; seed <= seeds; ++seed) {
             ScalingOptions o = small_options(1, N, 32);
             o.low_paths = 128, o.low_nodes = 0;  // a quiet denominator: S's noise is the numerator's
@@ -904,19 +923,9 @@ TEST(PrefilterScalingEstimator, ReciprocityWithUnequalLineCountsIsUnbiasedAndCal
             if (mode == 1) {
                 EXPECT_TRUE(st.reciprocity_used) << "seed " << seed;
             }
-            rep.push_back(st.S_rel_se_median);
-            double t[3] = {};
-            for (int bo = 0; bo < B; ++bo)
-                for (int bi = 0; bi < B; ++bi) {
-                    const double v = single.S_bin(bi, bo)[1];
-                    S[size_t(bo) * B + bi].push_back(v);
-                    t[outer(bi) ? (outer(bo) ? 2 : 1) : (outer(bo) ? 1 : 0)] += v;
-                }
-            for (int k = 0; k < 3; ++k) tot[mode][k] += t[k] / seeds, tot2[mode][k] += t[k] * t[k] / seeds;
+            study.add(mode, single, st.S_rel_se_median);
         }
-        std::nth_element(rep.begin(), rep.begin() + seeds / 2, rep.end());
-        spread[mode] = median_rel_spread(S), reported[mode] = rep[size_t(seeds / 2)];
-    }
+    const double spread[2] = {study.spread(0), study.spread(1)}, reported[2] = {study.reported(0), study.reported(1)};
     std::printf("unequal counts: median rel. spread of S over seeds: direct %.4f, combined %.4f (reported %.4f, %.4f)\n",
                 spread[0], spread[1], reported[0], reported[1]);
     EXPECT_GT(reported[1], 0.8 * spread[1]);
@@ -924,10 +933,5 @@ TEST(PrefilterScalingEstimator, ReciprocityWithUnequalLineCountsIsUnbiasedAndCal
     // The gain over the direct estimate: 0.874x its spread with these seeds; ½ / ½ weights gave
     // 0.976x (a quarter of the stopped bins' variance stays in every pair they transpose).
     EXPECT_LT(spread[1], 0.93 * spread[0]);
-    for (int k = 0; k < 3; ++k) {
-        double se2 = 0;
-        for (int m = 0; m < 2; ++m) se2 += std::max(0.0, tot2[m][k] - tot[m][k] * tot[m][k]) / (seeds - 1);
-        std::printf("class %d: S total direct %.4f, combined %.4f (+- %.4f)\n", k, tot[0][k], tot[1][k], std::sqrt(se2));
-        EXPECT_NEAR(tot[1][k], tot[0][k], 4 * std::sqrt(se2) + 1e-9) << "class " << k;
-    }
+    study.expect_equal_totals();
 }
