@@ -126,7 +126,8 @@
 // (w N + (1 - w) R) / N in every patch (T keeps the patches' differences), w the share of bo's
 // lines in those of bo and bi over the tile (½ with equal counts; with the stopping rule's
 // unequal counts a fixed ½ kept a quarter of a stopped bin's variance in every pair it
-// transposes: silk's worst S sat at 0.036), and the standard error of S counts both halves. Diagonal pairs (bi = bo: the same lines) are left as they are. The
+// transposes: silk's worst S sat at 0.036), and the standard error of S counts both halves.
+// Diagonal pairs (bi = bo: the same lines) are left as they are. The
 // average loses half of the common random numbers' cancellation (exact on a flat map), so a
 // table takes it only where it lowers S's median standard error (ScalingStats::reciprocity_used;
 // one choice per table, so it biases no bin). Measured (docs/bench.md, "Reciprocity"): on the
